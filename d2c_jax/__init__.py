@@ -1,0 +1,1 @@
+"""d2c_jax: D2C outcome-directed curriculum RL end to end in JAX/MJX."""

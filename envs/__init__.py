@@ -1,0 +1,42 @@
+"""MJX goal-conditioned environments for d2c_jax.
+
+`ENV_NAMES` lists the environments that exist; `make(name, **overrides)` builds one.
+This package never imports `d2c_jax`.
+"""
+
+from __future__ import annotations
+
+import importlib
+import importlib.util
+
+from envs.base import EnvState, GoalEnv, goal_distance
+
+# id -> (module, class name, constructor kwargs), in the order of ARCHITECTURE.md.
+_REGISTRY: dict[str, tuple[str, str, dict]] = {
+    "complex_maze": ("envs.point_maze", "PointMaze", {"maze": "complex_maze"}),
+    "medium_maze": ("envs.point_maze", "PointMaze", {"maze": "medium_maze"}),
+    "spiral_maze": ("envs.point_maze", "PointMaze", {"maze": "spiral_maze"}),
+    "ant": ("envs.ant", "Ant", {}),
+    "sawyer_push": ("envs.sawyer_peg", "SawyerPeg", {"task": "push"}),
+    "sawyer_pick_place": ("envs.sawyer_peg", "SawyerPeg", {"task": "pick_place"}),
+}
+
+ENV_NAMES: tuple[str, ...] = tuple(
+    name for name, (module, _, _) in _REGISTRY.items() if importlib.util.find_spec(module)
+)
+
+
+def make(name: str, **overrides) -> GoalEnv:
+    """Builds environment `name`; keyword `overrides` go to its constructor.
+
+    Raises:
+      ValueError: for an unknown id; the message lists the valid ids.
+    """
+    if name not in ENV_NAMES:
+        raise ValueError(f"unknown env {name!r}; valid ids: {', '.join(ENV_NAMES)}")
+    module, cls_name, kwargs = _REGISTRY[name]
+    cls = getattr(importlib.import_module(module), cls_name)
+    return cls(**{**kwargs, **overrides})
+
+
+__all__ = ["ENV_NAMES", "EnvState", "GoalEnv", "goal_distance", "make"]
