@@ -6,8 +6,14 @@ This package never imports `d2c_jax`.
 
 from __future__ import annotations
 
+import contextlib
 import importlib
 import importlib.util
+import io
+
+# mujoco.mjx prints a line when its optional Warp backend is absent; keep imports quiet.
+with contextlib.redirect_stdout(io.StringIO()):
+    from mujoco import mjx  # noqa: F401
 
 from envs.base import EnvState, GoalEnv, goal_distance
 

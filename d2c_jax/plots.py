@@ -1,0 +1,78 @@
+"""Host-side matplotlib drawings: maps with walls, goal points, points and trajectories.
+
+The trainer uses these for curriculum pictures (paper Fig. 8); the demo for random
+rollouts. Nothing here runs inside jit.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+import matplotlib
+
+matplotlib.use("Agg")  # headless: files only
+
+import matplotlib.pyplot as plt  # noqa: E402
+import numpy as np  # noqa: E402
+from matplotlib.patches import Circle, Rectangle  # noqa: E402
+
+
+def draw_map(ax, env, show_goals: bool = True) -> None:
+    """Draws an env's map on `ax`: wall cells (for layout envs), bounds and goal points.
+
+    Args:
+      ax: a matplotlib Axes.
+      env: a GoalEnv; if it has `layout` and `cell_size`, every wall cell is drawn.
+      show_goals: draw the mode points with their success radius.
+    """
+    low, high = np.asarray(env.goal_low)[:2], np.asarray(env.goal_high)[:2]
+    if hasattr(env, "layout"):
+        from envs import layouts
+
+        half = env.cell_size / 2.0
+        for x, y in layouts.wall_centers(env.layout, env.cell_size):
+            ax.add_patch(Rectangle((x - half, y - half), 2 * half, 2 * half, color="0.35", lw=0))
+        margin = env.cell_size
+    else:
+        ax.add_patch(Rectangle(low, *(high - low), fill=False, ec="0.35", lw=1.5))
+        margin = 0.05 * float(np.max(high - low))
+    if show_goals:
+        for k, g in enumerate(np.asarray(env.goal_points)):
+            ax.add_patch(Circle(g[:2], env.success_radius, color="tab:red", alpha=0.5, lw=0))
+            ax.plot(*g[:2], marker="*", ms=12, color="tab:red", mec="k", mew=0.5)
+            ax.annotate(str(k), g[:2], xytext=(4, 4), textcoords="offset points", fontsize=8)
+    ax.set_xlim(low[0] - margin, high[0] + margin)
+    ax.set_ylim(low[1] - margin, high[1] + margin)
+    ax.set_aspect("equal")
+    ax.set_xticks([])
+    ax.set_yticks([])
+
+
+def draw_trajectories(ax, trajectories, color=None, alpha: float = 0.6) -> None:
+    """Draws xy trajectories (n, T, >=2) as lines with a dot at each end point."""
+    for traj in np.asarray(trajectories):
+        ax.plot(traj[:, 0], traj[:, 1], lw=0.8, alpha=alpha, color=color)
+        ax.plot(traj[-1, 0], traj[-1, 1], ".", ms=4, alpha=alpha, color=color)
+
+
+def draw_points(ax, points, color="tab:blue", size: float = 12.0, label: str | None = None):
+    """Draws xy points (n, >=2) as a scatter."""
+    points = np.asarray(points).reshape(-1, np.asarray(points).shape[-1])
+    ax.scatter(points[:, 0], points[:, 1], s=size, color=color, label=label, zorder=3)
+
+
+def map_figure(envs_and_titles: Sequence[tuple[object, str]], panel_size: float = 4.0):
+    """A row of map panels, one per (env, title); returns (fig, axes)."""
+    n = len(envs_and_titles)
+    fig, axes = plt.subplots(1, n, figsize=(panel_size * n, panel_size), squeeze=False)
+    for ax, (env, title) in zip(axes[0], envs_and_titles, strict=True):
+        draw_map(ax, env)
+        ax.set_title(title)
+    return fig, axes[0]
+
+
+def save(fig, path) -> None:
+    """Saves and closes a figure."""
+    fig.tight_layout()
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
