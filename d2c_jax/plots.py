@@ -76,3 +76,68 @@ def save(fig, path) -> None:
     fig.tight_layout()
     fig.savefig(path, dpi=120)
     plt.close(fig)
+
+
+# --- training curves (from metrics.jsonl rows) ----------------------------------------
+
+
+def _series(rows: list[dict], key: str):
+    """(env_steps (n,), values (n, n_seeds)) of the rows that hold `key`."""
+    rows = [r for r in rows if key in r]
+    steps = np.array([r["env_steps"] for r in rows], np.float64)
+    values = np.array([np.atleast_1d(r[key]) for r in rows], np.float64)
+    return steps, values.reshape(len(rows), -1)
+
+
+def _mean_std_line(ax, steps, values, label, color=None) -> None:
+    """Mean over seeds with a +-std band (no band for one seed)."""
+    mean, std = values.mean(axis=1), values.std(axis=1)
+    (line,) = ax.plot(steps, mean, label=label, color=color)
+    if values.shape[1] > 1:
+        ax.fill_between(steps, mean - std, mean + std, color=line.get_color(), alpha=0.2)
+
+
+def success_curve(rows: list[dict], n_modes: int, path) -> None:
+    """eval/success per mode and their mean over env steps (mean +- std over seeds)."""
+    fig, ax = plt.subplots(figsize=(6, 4))
+    for k in range(n_modes):
+        steps, values = _series(rows, f"eval/success/{k}")
+        _mean_std_line(ax, steps, values, f"mode {k}")
+    steps, values = _series(rows, "eval/success")
+    _mean_std_line(ax, steps, values, "mean", color="k")
+    ax.set_xlabel("env steps")
+    ax.set_ylabel("success")
+    ax.set_ylim(-0.05, 1.05)
+    ax.legend(fontsize=8)
+    ax.grid(alpha=0.3)
+    save(fig, path)
+
+
+def metric_curve(rows: list[dict], key: str, path, ylabel: str | None = None) -> None:
+    """One metric over env steps (mean +- std over seeds)."""
+    fig, ax = plt.subplots(figsize=(6, 4))
+    steps, values = _series(rows, key)
+    _mean_std_line(ax, steps, values, key)
+    ax.set_xlabel("env steps")
+    ax.set_ylabel(ylabel or key)
+    ax.grid(alpha=0.3)
+    save(fig, path)
+
+
+def curriculum_snapshots(rows: list[dict], env, path, n_panels: int = 4) -> None:
+    """Curriculum goals over the map at `n_panels` moments of training (paper Fig. 8).
+
+    Uses the `curriculum/goals` of evaluation rows (the first seed's, for sweeps).
+    """
+    rows = [r for r in rows if "curriculum/goals" in r]
+    if not rows:
+        return
+    picks = sorted(set(np.linspace(0, len(rows) - 1, min(n_panels, len(rows))).astype(int)))
+    fig, axes = plt.subplots(1, len(picks), figsize=(4 * len(picks), 4), squeeze=False)
+    for ax, i in zip(axes[0], picks, strict=True):
+        goals = np.asarray(rows[i]["curriculum/goals"], np.float64)
+        goals = goals.reshape(-1, goals.shape[-2], goals.shape[-1])[0]  # first seed
+        draw_map(ax, env)
+        draw_points(ax, goals[:, :2], color="tab:green", size=18)
+        ax.set_title(f"{rows[i]['env_steps']:,} env steps")
+    save(fig, path)

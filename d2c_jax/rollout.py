@@ -1,0 +1,124 @@
+"""Episode collection: `num_envs` parallel episodes, vmapped over envs, scanned over time.
+
+SPEC §2 step 2: env i is conditioned on curriculum goal i mod K; when an env reaches its
+current goal it switches to a new one (SPEC §6, Alg. 1 lines 8-9) through `env.set_goal`.
+Training episodes never end early. Each transition keeps the goal that was active when
+its action was taken.
+"""
+
+from __future__ import annotations
+
+from typing import Callable, NamedTuple
+
+import jax
+import jax.numpy as jnp
+
+from envs import EnvState, GoalEnv
+
+# policy(obs (obs_dim,), goal (goal_dim,), key) -> action (action_dim,)
+Policy = Callable[[jax.Array, jax.Array, jax.Array], jax.Array]
+# next_goal(achieved_goal (goal_dim,), key) -> goal (goal_dim,)
+GoalSwitch = Callable[[jax.Array, jax.Array], jax.Array]
+
+
+class Episodes(NamedTuple):
+    """A batch of whole episodes, the layout the replay buffer inserts."""
+
+    obs: jax.Array  # (n_envs, H + 1, obs_dim)
+    achieved_goal: jax.Array  # (n_envs, H + 1, goal_dim)
+    action: jax.Array  # (n_envs, H, action_dim)
+    goal: jax.Array  # (n_envs, H, goal_dim), the goal active at each step
+    success: jax.Array  # (n_envs, H) bool, goal reached after the step
+
+
+def random_policy(action_dim: int) -> Policy:
+    """Uniform random actions in [-1, 1] (the warm-up)."""
+
+    def policy(obs, goal, key):
+        return jax.random.uniform(key, (action_dim,), minval=-1.0, maxval=1.0)
+
+    return policy
+
+
+def _episode(env: GoalEnv, policy: Policy, next_goal: GoalSwitch, goal, key) -> Episodes:
+    """One episode from reset, conditioned on `goal` (goal_dim,); unbatched."""
+    key_reset, key_steps = jax.random.split(key)
+    state = env.reset_with_goal(key_reset, goal)
+
+    def step(state: EnvState, key):
+        key_act, key_goal = jax.random.split(key)
+        active_goal = state.goal
+        action = policy(state.obs, active_goal, key_act)
+        state = env.step(state, action)
+        reached = state.success
+        # SPEC §6: after success, pick a new goal for the following steps.
+        switched = env.set_goal(state, next_goal(state.achieved_goal, key_goal))
+        state = jax.tree.map(lambda new, old: jnp.where(reached, new, old), switched, state)
+        out = (state.obs, state.achieved_goal, action, active_goal, reached)
+        return state, out
+
+    first = (state.obs, state.achieved_goal)
+    _, (obs, ag, action, goals, success) = jax.lax.scan(
+        step, state, jax.random.split(key_steps, env.horizon)
+    )
+    return Episodes(
+        obs=jnp.concatenate([first[0][None], obs]),
+        achieved_goal=jnp.concatenate([first[1][None], ag]),
+        action=action,
+        goal=goals,
+        success=success,
+    )
+
+
+def collect(
+    env: GoalEnv,
+    policy: Policy,
+    next_goal: GoalSwitch,
+    curriculum_goals: jax.Array,
+    num_envs: int,
+    key: jax.Array,
+) -> Episodes:
+    """Runs `num_envs` episodes in parallel; env i starts with curriculum goal i mod K.
+
+    Args:
+      env: the environment.
+      policy: action function (see `Policy`).
+      next_goal: post-success goal choice (see `GoalSwitch`).
+      curriculum_goals: (K, goal_dim) the curriculum goals.
+      num_envs: number of parallel episodes.
+      key: PRNG key.
+    Returns:
+      Episodes with leading axis num_envs.
+    """
+    k = curriculum_goals.shape[0]
+    goals = curriculum_goals[jnp.arange(num_envs) % k]
+    keys = jax.random.split(key, num_envs)
+    return jax.vmap(lambda g, kk: _episode(env, policy, next_goal, g, kk))(goals, keys)
+
+
+def evaluate(
+    env: GoalEnv, policy: Policy, episodes_per_mode: int, key: jax.Array
+) -> jax.Array:
+    """SPEC §7: success rate per mode, (n_modes,).
+
+    For each mode point, `episodes_per_mode` episodes from the start state (with its reset
+    noise), goal = the mode point exactly, no goal switching; success = within the
+    radius at any step. `policy` should be deterministic (tanh of the mean).
+    """
+    modes = jnp.asarray(env.goal_points)
+    goals = jnp.repeat(modes, episodes_per_mode, axis=0)  # (n_modes * n, goal_dim)
+
+    def episode(goal, key):
+        key_reset, key_steps = jax.random.split(key)
+        state = env.reset_with_goal(key_reset, goal)
+
+        def step(state, key):
+            state = env.step(state, policy(state.obs, state.goal, key))
+            return state, state.success
+
+        _, success = jax.lax.scan(step, state, jax.random.split(key_steps, env.horizon))
+        return success.any()
+
+    keys = jax.random.split(key, goals.shape[0])
+    hit = jax.vmap(episode)(goals, keys).astype(jnp.float32)
+    return hit.reshape(env.n_modes, episodes_per_mode).mean(axis=1)
