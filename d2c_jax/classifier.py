@@ -1,0 +1,292 @@
+"""The diversified conditional classifier ensemble of D2C (SPEC §3, paper Eq. 5).
+
+One network with a shared trunk and N heads (DivDis style): head i gives
+f_i(x; g) = "is x a desired outcome, given the conditioning goal g". Trained with
+  - BCE(f_i(phi(s); g), 0) on states from the replay buffer,
+  - BCE(f_i(g + eps; g), 1) on noisy conditioning goals,
+  - lambda * mean_{i<j} MI(f_i, f_j) on uniform points of the goal bounds,
+where the three terms share the conditioning goals g ~ D_G. The heads agree where there
+is data and disagree elsewhere, so p_pseudo = mean_i f_i is ~0 on visited states, ~1 at
+the desired outcomes and ~0.5 in unexplored space (D2C §4.2-4.4).
+"""
+
+from __future__ import annotations
+
+import itertools
+from typing import Callable, NamedTuple
+
+import flax.linen as nn
+import jax
+import jax.numpy as jnp
+import optax
+from flax import struct
+
+from d2c_jax.config import ClassifierConfig
+from envs import GoalEnv
+
+_P_CLIP = 1e-6  # SPEC §3: probabilities clipped to [1e-6, 1 - 1e-6] in the MI estimator
+
+Metrics = dict[str, jax.Array]
+RewardFn = Callable[[jax.Array, jax.Array], jax.Array]
+
+
+class Classifier(nn.Module):
+    """Shared ReLU trunk with `n_heads` linear heads; raw goal-space inputs.
+
+    Inputs are normalised inside with the goal bounds, (x - centre) / half-extent, so
+    callers pass raw achieved goals and goals (SPEC §3).
+
+    Attributes:
+      n_heads: number of heads N.
+      hidden_sizes: widths of the shared trunk.
+      goal_low: (goal_dim,) lower goal bounds, as a tuple (hashable module field).
+      goal_high: (goal_dim,) upper goal bounds, as a tuple.
+    """
+
+    n_heads: int
+    hidden_sizes: tuple[int, ...]
+    goal_low: tuple[float, ...]
+    goal_high: tuple[float, ...]
+
+    @nn.compact
+    def __call__(self, x: jax.Array, g: jax.Array) -> jax.Array:
+        """Logits of every head: x (..., d), g (..., d) (broadcast) -> (..., n_heads)."""
+        low = jnp.asarray(self.goal_low, jnp.float32)
+        high = jnp.asarray(self.goal_high, jnp.float32)
+        centre, half = (high + low) / 2.0, (high - low) / 2.0
+        x, g = jnp.broadcast_arrays(jnp.asarray(x, jnp.float32), jnp.asarray(g, jnp.float32))
+        h = jnp.concatenate([(x - centre) / half, (g - centre) / half], axis=-1)
+        for width in self.hidden_sizes:
+            h = nn.relu(nn.Dense(width)(h))
+        return nn.Dense(self.n_heads)(h)
+
+
+@struct.dataclass
+class ClassifierState:
+    """Parameters and optimiser state of the classifier."""
+
+    params: dict  # flax params of `Classifier` (trunk and heads)
+    opt_state: optax.OptState  # Adam state
+    step: jax.Array  # () int32 updates done
+
+
+class ClassifierBatch(NamedTuple):
+    """One batch of Eq. 5; row b of every term shares the conditioning goal cond_goals[b]."""
+
+    negatives: jax.Array  # (B, goal_dim) achieved goals phi(s) of buffer states, label 0
+    positives: jax.Array  # (B, goal_dim) cond_goals + eps noise, label 1
+    uniform: jax.Array  # (B, goal_dim) unlabelled points u ~ D_T, for the MI term
+    cond_goals: jax.Array  # (B, goal_dim) conditioning goals g ~ D_G
+
+
+def make_classifier(cfg: ClassifierConfig, env: GoalEnv) -> Classifier:
+    """The classifier module for `env`'s goal bounds."""
+    return Classifier(
+        n_heads=cfg.n_heads,
+        hidden_sizes=tuple(cfg.hidden_sizes),
+        goal_low=tuple(float(v) for v in env.goal_low),
+        goal_high=tuple(float(v) for v in env.goal_high),
+    )
+
+
+def make_optimizer(cfg: ClassifierConfig) -> optax.GradientTransformation:
+    """Adam with the classifier learning rate (Table 2)."""
+    return optax.adam(cfg.lr)
+
+
+def init_classifier(
+    cfg: ClassifierConfig, net: Classifier, goal_dim: int, key: jax.Array
+) -> ClassifierState:
+    """Fresh parameters and Adam state."""
+    dummy = jnp.zeros((1, goal_dim), jnp.float32)
+    params = net.init(key, dummy, dummy)
+    return ClassifierState(
+        params=params,
+        opt_state=make_optimizer(cfg).init(params),
+        step=jnp.zeros((), jnp.int32),
+    )
+
+
+def head_probs(net: Classifier, params: dict, x: jax.Array, g: jax.Array) -> jax.Array:
+    """f_i(x; g) for every head: x (..., d), g (..., d) -> (..., n_heads) in (0, 1)."""
+    return jax.nn.sigmoid(net.apply(params, x, g))
+
+
+def p_pseudo(net: Classifier, params: dict, x: jax.Array, g: jax.Array) -> jax.Array:
+    """p_pseudo(x; g) = mean_i f_i(x; g) (SPEC §3): x (..., d), g (..., d) -> (...,)."""
+    return head_probs(net, params, x, g).mean(axis=-1)
+
+
+def make_reward_fn(net: Classifier, params: dict) -> RewardFn:
+    """D2C's intrinsic reward r = p_pseudo(phi(s_{t+1}); g) (paper §4.4).
+
+    The parameters are wrapped in stop_gradient: the reward is data for SAC, never a
+    path for gradients into the classifier.
+
+    Returns:
+      reward_fn(ag_next (..., d), goal (..., d)) -> (...,) in (0, 1).
+    """
+    frozen = jax.lax.stop_gradient(params)
+
+    def reward_fn(ag_next: jax.Array, goal: jax.Array) -> jax.Array:
+        return jax.lax.stop_gradient(p_pseudo(net, frozen, ag_next, goal))
+
+    return reward_fn
+
+
+# --- Eq. 5 ----------------------------------------------------------------------------
+
+
+def mutual_information(p_i: jax.Array, p_j: jax.Array) -> jax.Array:
+    """Batch estimate of MI between two heads (SPEC §3, DivDis).
+
+    Each head is a 2-way distribution [p, 1 - p] per point; the joint is
+    P(a, c) = mean_x p_i(a|x) p_j(c|x), the marginals are its sums (= batch means), and
+    MI = sum_{a,c} P log(P / (P_i P_j)).
+
+    Args:
+      p_i: (B,) probabilities of head i.
+      p_j: (B,) probabilities of head j.
+    Returns:
+      () the mutual information in nats.
+    """
+    p_i = jnp.clip(p_i, _P_CLIP, 1.0 - _P_CLIP)
+    p_j = jnp.clip(p_j, _P_CLIP, 1.0 - _P_CLIP)
+    dist_i = jnp.stack([p_i, 1.0 - p_i], axis=-1)  # (B, 2)
+    dist_j = jnp.stack([p_j, 1.0 - p_j], axis=-1)  # (B, 2)
+    joint = jnp.einsum("ba,bc->ac", dist_i, dist_j) / p_i.shape[0]  # (2, 2)
+    marg_i = joint.sum(axis=1, keepdims=True)  # (2, 1)
+    marg_j = joint.sum(axis=0, keepdims=True)  # (1, 2)
+    return jnp.sum(joint * (jnp.log(joint) - jnp.log(marg_i) - jnp.log(marg_j)))
+
+
+def mean_pairwise_mi(probs: jax.Array) -> jax.Array:
+    """Mean over head pairs i < j of MI(f_i, f_j): probs (B, n_heads) -> ()."""
+    pairs = list(itertools.combinations(range(probs.shape[-1]), 2))
+    if not pairs:  # one head: nothing to diversify
+        return jnp.zeros((), probs.dtype)
+    return jnp.mean(jnp.stack([mutual_information(probs[:, i], probs[:, j]) for i, j in pairs]))
+
+
+def loss(
+    cfg: ClassifierConfig, net: Classifier, params: dict, batch: ClassifierBatch
+) -> tuple[jax.Array, Metrics]:
+    """D2C Eq. 5: sum over heads of the BCEs (means over the batch) + lambda * mean pair MI.
+
+    Args:
+      cfg: classifier config (lambda = cfg.diversity_weight).
+      net: the classifier module.
+      params: its parameters.
+      batch: negatives, positives, uniform points and their shared conditioning goals.
+    Returns:
+      (loss (), metrics) with "classifier/{loss,bce_neg,bce_pos,mi}".
+    """
+    g = batch.cond_goals
+    neg_logits = net.apply(params, batch.negatives, g)  # (B, N)
+    pos_logits = net.apply(params, batch.positives, g)  # (B, N)
+    uni_logits = net.apply(params, batch.uniform, g)  # (B, N)
+    # Stable logits-based BCE; sum over heads of the per-head batch means.
+    bce_neg = optax.sigmoid_binary_cross_entropy(neg_logits, jnp.zeros_like(neg_logits))
+    bce_pos = optax.sigmoid_binary_cross_entropy(pos_logits, jnp.ones_like(pos_logits))
+    bce_neg = bce_neg.mean(axis=0).sum()
+    bce_pos = bce_pos.mean(axis=0).sum()
+    # Diversity on unlabelled points (DivDis): the heads should be independent there.
+    mi = mean_pairwise_mi(jax.nn.sigmoid(uni_logits))
+    total = bce_neg + bce_pos + cfg.diversity_weight * mi
+    metrics = {
+        "classifier/loss": total,
+        "classifier/bce_neg": bce_neg,
+        "classifier/bce_pos": bce_pos,
+        "classifier/mi": mi,
+    }
+    return total, metrics
+
+
+def update_classifier(
+    cfg: ClassifierConfig, net: Classifier, state: ClassifierState, batch: ClassifierBatch
+) -> tuple[ClassifierState, Metrics]:
+    """One Adam step on Eq. 5 (deterministic: all sampling is in `sample_batch`)."""
+    grads, metrics = jax.grad(lambda p: loss(cfg, net, p, batch), has_aux=True)(state.params)
+    updates, opt_state = make_optimizer(cfg).update(grads, state.opt_state, state.params)
+    params = optax.apply_updates(state.params, updates)
+    new_state = state.replace(params=params, opt_state=opt_state, step=state.step + 1)
+    return new_state, metrics
+
+
+# --- batches -------------------------------------------------------------------------
+
+
+def sample_conditioning_goals(
+    cfg: ClassifierConfig,
+    env: GoalEnv,
+    key: jax.Array,
+    n: int,
+    buffer_states: jax.Array | None = None,
+    desired_examples: jax.Array | None = None,
+) -> jax.Array:
+    """n conditioning goals g ~ D_G (SPEC §3).
+
+    "uniform" (default): D_G = D_T = U(goal bounds). "buffer_and_desired": n // 2 rows
+    drawn from `buffer_states`, the rest from the desired examples.
+
+    Args:
+      cfg: classifier config (cfg.goal_candidates picks D_G).
+      env: the environment (goal bounds, clip_goal).
+      key: PRNG key.
+      n: number of goals.
+      buffer_states: (M, d) achieved goals of buffer states; needed by "buffer_and_desired".
+      desired_examples: (n_modes, n_per_mode, d) or (E, d); needed by "buffer_and_desired".
+    Returns:
+      (n, d) conditioning goals.
+    """
+    if cfg.goal_candidates == "uniform":
+        return env.sample_uniform_goals(key, n)
+    if cfg.goal_candidates != "buffer_and_desired":
+        raise ValueError(f"unknown goal_candidates {cfg.goal_candidates!r}")
+    if buffer_states is None or desired_examples is None:
+        raise ValueError("goal_candidates='buffer_and_desired' needs buffer states and examples")
+    desired = desired_examples.reshape(-1, desired_examples.shape[-1])
+    key_buf, key_des = jax.random.split(key)
+    n_buf = n // 2
+    from_buf = buffer_states[jax.random.randint(key_buf, (n_buf,), 0, buffer_states.shape[0])]
+    from_des = desired[jax.random.randint(key_des, (n - n_buf,), 0, desired.shape[0])]
+    return jnp.concatenate([from_buf, from_des], axis=0)
+
+
+def positive_examples(
+    cfg: ClassifierConfig, env: GoalEnv, cond_goals: jax.Array, key: jax.Array
+) -> jax.Array:
+    """g + eps, eps ~ U[-c, c]^d * goal_noise_mask (Eq. 5 positives): (B, d) -> (B, d)."""
+    eps = jax.random.uniform(key, cond_goals.shape, minval=-cfg.eps, maxval=cfg.eps)
+    return cond_goals + eps * jnp.asarray(env.goal_noise_mask, cond_goals.dtype)
+
+
+def sample_batch(
+    cfg: ClassifierConfig,
+    env: GoalEnv,
+    buffer_states: jax.Array,
+    desired_examples: jax.Array,
+    key: jax.Array,
+) -> ClassifierBatch:
+    """Builds one Eq. 5 batch around the given buffer states.
+
+    Args:
+      cfg: classifier config.
+      env: the environment.
+      buffer_states: (B, d) achieved goals phi(s) sampled from the replay buffer; they
+        are the negatives and set the batch size B.
+      desired_examples: (n_modes, n_per_mode, d) desired examples (used by D_G only for
+        "buffer_and_desired").
+      key: PRNG key.
+    Returns:
+      ClassifierBatch of B rows per term.
+    """
+    n = buffer_states.shape[0]
+    key_g, key_eps, key_u = jax.random.split(key, 3)
+    cond = sample_conditioning_goals(cfg, env, key_g, n, buffer_states, desired_examples)
+    return ClassifierBatch(
+        negatives=buffer_states,
+        positives=positive_examples(cfg, env, cond, key_eps),
+        uniform=env.sample_uniform_goals(key_u, n),
+        cond_goals=cond,
+    )

@@ -1,0 +1,252 @@
+"""Tests of the matching curriculum (d2c_jax/curriculum.py)."""
+
+import dataclasses
+
+import flax.linen as nn
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from d2c_jax import classifier as clf
+from d2c_jax import curriculum as cur
+from d2c_jax.config import ClassifierConfig, CurriculumConfig
+from envs.base import GoalEnv
+
+
+class GoalBox:
+    """Just the goal interface of a GoalEnv (no physics): modes, radius, bounds."""
+
+    clip_goal = GoalEnv.clip_goal
+    sample_uniform_goals = GoalEnv.sample_uniform_goals
+
+    def __init__(self, modes, low, high, radius=0.5, mask=None):
+        self.goal_points = np.asarray(modes, np.float32)
+        self.goal_low = np.asarray(low, np.float32)
+        self.goal_high = np.asarray(high, np.float32)
+        self.goal_dim = self.goal_low.shape[0]
+        self.success_radius = radius
+        ones = np.ones(self.goal_dim, np.float32)
+        self.goal_noise_mask = ones if mask is None else np.asarray(mask, np.float32)
+
+
+# Two modes of the medium maze, its bounds and radius.
+ENV = GoalBox([[16.0, 16.0], [-16.0, -16.0]], [-18.0, -18.0], [18.0, 18.0])
+
+
+class DistanceNet(nn.Module):
+    """An analytic 'classifier': both heads = sigmoid(4 - ||x - g||^2 / scale)."""
+
+    scale: float = 4.0
+
+    @nn.compact
+    def __call__(self, x, g):
+        logit = 4.0 - jnp.sum((x - g) ** 2, axis=-1, keepdims=True) / self.scale
+        return jnp.concatenate([logit, logit], axis=-1)
+
+
+DIST = DistanceNet()
+NO_PARAMS = {}
+
+
+def _lines(ends, horizon=11):
+    """(P, T, 2) straight trajectories from the origin to each end point."""
+    frac = np.linspace(0.0, 1.0, horizon)[None, :, None]
+    return jnp.asarray(frac * np.asarray(ends, np.float32)[:, None, :], jnp.float32)
+
+
+# Pool: 1 ends next to mode 0, 3 next to mode 1, 4 and 5 nearer the modes than 0 and 2.
+ENDS = [[-5.0, 3.0], [15.9, 16.1], [3.0, -4.0], [-15.8, -16.0], [14.0, 14.5], [-13.0, -14.0]]
+POOL = _lines(ENDS)
+CFG = CurriculumConfig(n_slots=4, pool_size=6, cost_stride=4, eps=0.5)
+
+
+def _propose(cfg, env, net, params, value_fn=None):
+    """Jitted `propose` with the pool and its validity traced."""
+    return jax.jit(
+        lambda pool, valid, start, key: cur.propose(
+            cfg, env, net, params, pool, valid, start, key, value_fn=value_fn
+        )
+    )
+
+
+RUN = _propose(CFG, ENV, DIST, NO_PARAMS)  # compiled once, shared by the tests below
+
+
+# --- examples and slots -----------------------------------------------------------
+
+
+def test_desired_examples_and_slots():
+    env = GoalBox([[0.5, 0.9, 0.02], [-0.3, 0.4, 0.02]], [-0.6, 0.2, 0.0], [0.6, 1.0, 0.3],
+                  radius=0.05, mask=[1.0, 1.0, 0.0])  # fmt: skip
+    ex = jax.jit(cur.desired_examples, static_argnums=(0, 1))(env, 2000, jax.random.key(0))
+    assert ex.shape == (2, 2000, 3)
+    np.testing.assert_allclose(ex[1].mean(0), env.goal_points[1], atol=3e-3)
+    np.testing.assert_allclose(ex[1, :, :2].std(0), 0.025, rtol=0.1)  # radius / 2
+    np.testing.assert_array_equal(ex[..., 2], np.float32(0.02))  # masked z: no noise
+    assert np.all(ex[0, :, 1] <= 1.0)  # clipped to the bounds (mode 0 is near y = 1)
+    slots = jax.jit(cur.goal_slots, static_argnums=(0, 1))(env, 5, jax.random.key(1))
+    nearest = np.linalg.norm(slots[:, None] - env.goal_points[None], axis=-1).argmin(1)
+    np.testing.assert_array_equal(nearest, [0, 1, 0, 1, 0])  # mode j mod n_modes
+
+
+def test_subsample_keeps_every_stride_and_the_final_step():
+    traj = jnp.arange(10.0)[None, :, None]
+    np.testing.assert_array_equal(cur.subsample(traj, 4)[0, :, 0], [0, 4, 8, 9])
+    np.testing.assert_array_equal(cur.subsample(traj[:, :9], 4)[0, :, 0], [0, 4, 8])
+
+
+# --- Eq. 7 ---------------------------------------------------------------------------
+
+
+def test_cost_matrix_matches_brute_force():
+    ccfg = ClassifierConfig(n_heads=2, hidden_sizes=(16, 16))
+    net = clf.make_classifier(ccfg, ENV)
+    params = jax.jit(clf.init_classifier, static_argnums=(0, 1, 2))(ccfg, net, 2, jax.random.key(0))
+    params = jax.tree.map(lambda w: 3.0 * w, params.params)  # sharper, more varied p
+    slots = jnp.array([[16.0, 16.0], [-10.0, 5.0], [2.0, -3.0]])
+    pool = jax.random.uniform(jax.random.key(1), (4, 7, 2), minval=-18.0, maxval=18.0)
+    cost, cand = jax.jit(lambda p: cur.cost_matrix(net, p, slots, pool, 3))(params)
+    assert cost.shape == (3, 4) and cand.shape == (3, 4, 2)
+    heads = jax.jit(lambda x, g: clf.p_pseudo(net, params, x, g))
+    steps = [0, 3, 6]
+    for j in range(3):
+        y = float(heads(slots[j], slots[j]))
+        for k in range(4):
+            p = np.asarray(heads(pool[k, steps], slots[j]), np.float64)
+            w = -(y * np.log(p) + (1 - y) * np.log(1 - p))  # soft-target BCE
+            assert float(cost[j, k]) == pytest.approx(w.min(), rel=1e-4)
+            np.testing.assert_array_equal(cand[j, k], pool[k, steps[int(w.argmin())]])
+
+
+def test_value_variant_subtracts_scaled_value():
+    slots = jnp.array([[16.0, 16.0], [-16.0, -16.0]])
+    base, _ = cur.cost_matrix(DIST, NO_PARAMS, slots, POOL, 4)
+    value = lambda g: jnp.full(g.shape[:-1], 50.0)  # noqa: E731  constant V
+    shifted, _ = cur.cost_matrix(DIST, NO_PARAMS, slots, POOL, 4, value, value_scale=0.01)
+    np.testing.assert_allclose(shifted, base - 0.5, atol=1e-5)  # (1 - 0.99) * 50
+
+
+# --- matching ------------------------------------------------------------------------
+
+
+def test_trajectory_ending_at_a_mode_is_matched_to_it():
+    goals, m = RUN(POOL, 6, jnp.zeros(2), jax.random.key(0))
+    slots_mode = np.arange(4) % 2  # slot j is mode j mod 2
+    # Each goal is its candidate (a pool state) + U[-0.5, 0.5] noise; find the trajectory.
+    ends = np.asarray(ENDS)
+    used = np.abs(np.asarray(goals)[:, None] - ends[None]).max(-1).argmin(1)  # (K,)
+    assert np.all(np.abs(np.asarray(goals) - ends[used]).max(-1) <= 0.5)
+    assert len(set(used.tolist())) == 4  # no trajectory used twice
+    assert set(used.tolist()) == {1, 3, 4, 5}  # the four nearest the modes
+    assert slots_mode[list(used).index(1)] == 0  # ends next to mode 0 -> a mode-0 slot
+    assert slots_mode[list(used).index(3)] == 1
+    assert slots_mode[list(used).index(4)] == 0 and slots_mode[list(used).index(5)] == 1
+    assert float(m["curriculum/pool_full"]) == 1.0
+    # curriculum/distance = mean ||goal_j - g_j+||; slots are within ~1 of their modes.
+    to_mode = np.linalg.norm(np.asarray(goals) - ENV.goal_points[slots_mode], axis=-1).mean()
+    assert float(m["curriculum/distance"]) == pytest.approx(to_mode, abs=1.0)
+
+
+def test_value_variant_trades_cost_against_value():
+    # V on the two trajectories that stay near the start (0 and 2), 0 elsewhere.
+    def value_fn(v):
+        def fn(g):
+            near_start = jnp.linalg.norm(g[:, -1], axis=-1) < 6.0  # (P,)
+            return jnp.broadcast_to(v * near_start[:, None], g.shape[:-1])
+
+        return fn
+
+    slots = jnp.array([[16.0, 16.0], [-16.0, -16.0]])
+    costs = {
+        v: np.asarray(cur.cost_matrix(DIST, NO_PARAMS, slots, POOL, 4, value_fn(v), 0.01)[0])
+        for v in (100.0, 2000.0)
+    }
+    # V <= 1/(1-gamma) = 100: a bonus of at most 1 cannot beat reaching the mode (w ~ 0.1
+    # against ~13.6 for a trajectory that never gets near it): 1 and 3 stay the cheapest.
+    np.testing.assert_array_equal(costs[100.0].argmin(1), [1, 3])
+    np.testing.assert_array_equal(costs[2000.0][:, [0, 2]] < costs[2000.0][:, [1, 3]], True)
+    cfg = dataclasses.replace(CFG, variant="value", n_slots=2)
+    goals, m = _propose(cfg, ENV, DIST, NO_PARAMS, value_fn(100.0))(
+        POOL, 6, jnp.zeros(2), jax.random.key(0)
+    )
+    assert np.linalg.norm(goals - ENV.goal_points, axis=-1).max() < 1.5
+    with pytest.raises(ValueError, match="value_fn"):
+        cur.propose(cfg, ENV, DIST, NO_PARAMS, POOL, 6, jnp.zeros(2), jax.random.key(0))
+
+
+def test_warmup_fallback_with_an_empty_pool():
+    start = jnp.array([0.05, -0.05])
+    empty = jnp.zeros_like(POOL)
+    for valid in (0, 5):
+        goals, m = RUN(empty, valid, start, jax.random.key(valid))
+        assert float(m["curriculum/pool_full"]) == 0.0
+        assert np.all(np.linalg.norm(goals - start, axis=-1) < 4 * ENV.success_radius)
+    # The pool's validity may also be a (P,) mask.
+    assert not cur.pool_full(jnp.array([True] * 5 + [False]), 6)
+    assert cur.pool_full(jnp.ones(6, bool), 6) and cur.pool_full(jnp.int32(6), 6)
+    # The fallback distribution: start + N(0, radius^2), clipped.
+    warm = cur.warmup_goals(ENV, jnp.array([17.8, 0.0]), 4000, jax.random.key(1))
+    assert np.all(warm <= 18.0)
+    np.testing.assert_allclose(warm[:, 1].std(), 0.5, rtol=0.1)
+    # Vmapped seeds: one with an empty pool, one with a full one, in the same program.
+    batched = jax.vmap(RUN, in_axes=(0, 0, None, 0))
+    keys = jax.random.split(jax.random.key(2), 2)
+    goals, m = batched(jnp.stack([empty, POOL]), jnp.array([0, 6]), start, keys)
+    np.testing.assert_array_equal(m["curriculum/pool_full"], [0.0, 1.0])
+    assert np.all(np.linalg.norm(goals[0] - start, axis=-1) < 4 * ENV.success_radius)
+    assert np.linalg.norm(goals[1] - ENV.goal_points[np.arange(4) % 2], axis=-1).max() < 6.0
+
+
+def test_no_curriculum_variant_uses_desired_examples():
+    cfg = dataclasses.replace(CFG, variant="none")
+    goals, m = _propose(cfg, ENV, DIST, NO_PARAMS)(POOL, 0, jnp.zeros(2), jax.random.key(0))
+    modes = ENV.goal_points[np.arange(4) % 2]
+    assert np.all(np.linalg.norm(goals - modes, axis=-1) < 4 * 0.25)
+    assert float(m["curriculum/distance"]) == 0.0
+
+
+# --- after success (SPEC §6) ---------------------------------------------------------
+
+
+def test_post_success_goal_moves_towards_the_modes():
+    net = DistanceNet(scale=100.0)  # p_pseudo decreases with the distance to the nearest mode
+    choose = jax.jit(
+        jax.vmap(lambda ag, key: cur.post_success_goal(ENV, net, NO_PARAMS, ag, key, radius_r=2.5))
+    )
+    keys = jax.random.split(jax.random.key(0), 200)
+    ag = jnp.broadcast_to(jnp.array([14.0, 14.0]), (200, 2))
+    goals = np.asarray(choose(ag, keys))
+    assert goals.shape == (200, 2)
+    assert np.all(np.abs(goals - 14.0) <= 2.5)  # within the candidate box
+    # Best of 16 candidates in [11.5, 16.5]^2: close to (16, 16); a random one is ~2.9 away.
+    assert np.linalg.norm(goals - 16.0, axis=-1).mean() < 1.2
+    # At the border the candidates are clipped into the goal bounds (mode on the corner).
+    env = GoalBox([[18.0, 18.0]], [-18.0, -18.0], [18.0, 18.0])
+    corner = jax.jit(
+        jax.vmap(
+            lambda key: cur.post_success_goal(
+                env, net, NO_PARAMS, jnp.full(2, 17.5), key, radius_r=2.5
+            )
+        )
+    )(keys)
+    assert np.all(corner <= 18.0) and np.mean(np.any(corner == 18.0, axis=-1)) > 0.5
+
+
+def test_propose_on_the_medium_maze(medium_maze):
+    env = medium_maze
+    ccfg = ClassifierConfig(n_heads=2, hidden_sizes=(16, 16))
+    net = clf.make_classifier(ccfg, env)
+    params = jax.jit(clf.init_classifier, static_argnums=(0, 1, 2))(
+        ccfg, net, env.goal_dim, jax.random.key(0)
+    ).params
+    cfg = CurriculumConfig(n_slots=4, pool_size=8)
+    pool = jax.random.uniform(jax.random.key(1), (8, 101, 2), minval=-18.0, maxval=18.0)
+    goals, m = _propose(cfg, env, net, params)(pool, 8, jnp.zeros(2), jax.random.key(2))
+    assert goals.shape == (4, 2) and np.all(np.abs(goals) <= 18.0)
+    # Each goal is a (subsampled) pool state plus U[-eps, eps]^2 noise.
+    states = np.asarray(cur.subsample(pool, cfg.cost_stride)).reshape(-1, 2)
+    gap = np.abs(np.asarray(goals)[:, None] - states[None]).max(-1).min(-1)
+    assert np.all(gap <= cfg.eps + 1e-5)
+    assert set(m) == {"curriculum/distance", "curriculum/matched_cost", "curriculum/pool_full"}
+    assert np.isfinite(float(m["curriculum/distance"]))
