@@ -75,7 +75,7 @@ class ClassifierConfig:
     diversity_weight: float = 1.0
     """lambda of Eq. 5 (0 = no diversification)."""
     eps: float = 0.5
-    """Half-width c of the uniform noise added to desired goals (Table 3 'eps')."""
+    """Half-width c of the noise on desired goals (Eq. 5) and on curriculum goals (Table 3 'eps')."""
     update_every: int = 2000
     """Env steps per classifier round (Table 3 'f every')."""
     iters: int = 16
@@ -104,3 +104,161 @@ class CurriculumConfig:
     """r: half-width of the candidate noise around the reached state (SPEC §6)."""
     auction_max_iters: int = 100_000
     """Iteration cap of the auction matcher."""
+
+
+# --- the whole run ---------------------------------------------------------------
+
+
+@dataclasses.dataclass(frozen=True)
+class TrainConfig:
+    """One D2C run (SPEC §2, §7): the env, the schedules and every component's config."""
+
+    env: str = "medium_maze"
+    """Environment id (envs.ENV_NAMES)."""
+    preset: str = "paper"
+    """Name of the preset this config came from (recorded in config.json)."""
+    seed: int = 0
+    """First seed S; vmapped seeds are S..S+num_seeds-1."""
+    num_seeds: int = 1
+    """Number of seeds trained together in one vmapped program."""
+    total_steps: int = 1_000_000
+    """Env steps to train for (rounded up to whole iterations)."""
+    num_envs: int = 20
+    """Parallel episodes per iteration; E = num_envs * horizon env steps per iteration."""
+    utd: float = 1.0
+    """SAC updates per env step: M = round(E * utd) updates per iteration."""
+    seed_steps: int = 2000
+    """Env steps of random actions at the start (whole iterations: ceil(seed_steps / E))."""
+    eval_every: int = 10_000
+    """Evaluate every ceil(eval_every / E) iterations (and once at the end)."""
+    eval_episodes: int = 10
+    """Evaluation episodes per mode."""
+    checkpoint_every: int = 25
+    """Save a checkpoint every this many iterations (and at the end, and on a signal)."""
+    reward: Literal["intrinsic", "sparse"] = "intrinsic"
+    """D2C's intrinsic reward p_pseudo(phi(s'); g), or the sparse ablation."""
+    sac: SACConfig = dataclasses.field(default_factory=SACConfig)
+    """Goal-conditioned SAC."""
+    replay: ReplayConfig = dataclasses.field(default_factory=ReplayConfig)
+    """Replay buffer."""
+    her: HERConfig = dataclasses.field(default_factory=HERConfig)
+    """Hindsight relabelling."""
+    classifier: ClassifierConfig = dataclasses.field(default_factory=ClassifierConfig)
+    """Classifier ensemble."""
+    curriculum: CurriculumConfig = dataclasses.field(default_factory=CurriculumConfig)
+    """Curriculum."""
+
+
+# --- presets (SPEC §2, §8 Table 3) --------------------------------------------------
+
+PRESET_NAMES = ("paper", "quick", "tiny")
+
+# Per env: Table 3's classifier settings and the schedules of SPEC §2.
+# H (the env's horizon) is repeated here only to size the tiny preset.
+_MAZE = dict(
+    heads=2, lam=1.0, eps=0.5, f_every=2000, total=1_000_000, seed_steps=2000, r=2.5, H=100
+)
+_TABLE3 = {
+    "complex_maze": _MAZE,
+    "medium_maze": _MAZE,
+    "spiral_maze": _MAZE,
+    "ant": dict(
+        heads=2, lam=2.0, eps=1.0, f_every=4500, total=3_000_000, seed_steps=4000, r=2.5, H=300
+    ),
+    "sawyer_push": dict(
+        heads=2, lam=1.0, eps=0.025, f_every=3000, total=3_000_000, seed_steps=4000, r=0.1, H=200
+    ),
+    "sawyer_pick_place": dict(
+        heads=2, lam=1.0, eps=0.025, f_every=3000, total=3_000_000, seed_steps=4000, r=0.1, H=200
+    ),
+}
+
+
+def paper_preset(env: str) -> TrainConfig:
+    """SPEC/Tables 2-3 exactly: 3x512 SAC, batch 512, utd 1, num_envs = n_slots = 20."""
+    t = _TABLE3[env]
+    return TrainConfig(
+        env=env,
+        preset="paper",
+        total_steps=t["total"],
+        seed_steps=t["seed_steps"],
+        classifier=ClassifierConfig(
+            n_heads=t["heads"], diversity_weight=t["lam"], eps=t["eps"], update_every=t["f_every"]
+        ),
+        curriculum=CurriculumConfig(post_success_range=t["r"]),
+    )
+
+
+def quick_preset(env: str) -> TrainConfig:
+    """Tuned to learn fast on a laptop CPU (see docs/DEVIATIONS.md, "quick preset")."""
+    cfg = paper_preset(env)
+    return dataclasses.replace(
+        cfg,
+        preset="quick",
+        num_envs=20,
+        utd=0.25,
+        eval_every=10_000,
+        checkpoint_every=50,
+        sac=dataclasses.replace(cfg.sac, hidden_sizes=(256, 256), batch_size=256),
+        replay=ReplayConfig(capacity=1_000_000),
+        classifier=dataclasses.replace(cfg.classifier, hidden_sizes=(128, 128), batch_size=256),
+    )
+
+
+def tiny_preset(env: str) -> TrainConfig:
+    """Seconds per run, for tests: tiny nets, few envs, 2 iterations."""
+    cfg = paper_preset(env)
+    return dataclasses.replace(
+        cfg,
+        preset="tiny",
+        total_steps=2 * 4 * _TABLE3[env]["H"],  # 2 iterations of num_envs * horizon
+        num_envs=4,
+        utd=0.02,
+        seed_steps=1,
+        eval_every=1,
+        eval_episodes=2,
+        checkpoint_every=1,
+        sac=dataclasses.replace(cfg.sac, hidden_sizes=(32, 32), batch_size=32),
+        replay=ReplayConfig(capacity=20_000),
+        classifier=dataclasses.replace(
+            cfg.classifier, hidden_sizes=(32, 32), batch_size=32, iters=2, update_every=100
+        ),
+        curriculum=dataclasses.replace(cfg.curriculum, n_slots=4, pool_size=4),
+    )
+
+
+def preset(env: str, name: str) -> TrainConfig:
+    """The preset `name` (paper | quick | tiny) for env `env`.
+
+    Raises:
+      ValueError: for an unknown preset or env.
+    """
+    if env not in _TABLE3:
+        raise ValueError(f"unknown env {env!r}; valid ids: {', '.join(_TABLE3)}")
+    builders = {"paper": paper_preset, "quick": quick_preset, "tiny": tiny_preset}
+    if name not in builders:
+        raise ValueError(f"unknown preset {name!r}; valid presets: {', '.join(PRESET_NAMES)}")
+    return builders[name](env)
+
+
+def validate(cfg: TrainConfig) -> str | None:
+    """A one-line description of the first invalid setting, or None."""
+    checks = (
+        (cfg.total_steps >= 0, f"--total-steps must be >= 0, got {cfg.total_steps}"),
+        (cfg.num_seeds >= 1, f"--seeds must be >= 1, got {cfg.num_seeds}"),
+        (cfg.num_envs >= 1, f"--num-envs must be >= 1, got {cfg.num_envs}"),
+        (cfg.utd > 0, f"--utd must be > 0, got {cfg.utd}"),
+        (cfg.eval_episodes >= 1, f"--eval-episodes must be >= 1, got {cfg.eval_episodes}"),
+        (cfg.checkpoint_every >= 1, "--checkpoint-every must be >= 1"),
+        (cfg.sac.batch_size >= 1, f"--sac.batch-size must be >= 1, got {cfg.sac.batch_size}"),
+        (
+            cfg.curriculum.pool_size >= cfg.curriculum.n_slots,
+            "--curriculum.pool-size must be >= --curriculum.n-slots (K <= P, SPEC §5)",
+        ),
+        (cfg.curriculum.n_slots >= 1, "--curriculum.n-slots must be >= 1"),
+        (cfg.classifier.diversity_weight >= 0, "--classifier.diversity-weight must be >= 0"),
+    )
+    for ok, message in checks:
+        if not ok:
+            return message
+    return None

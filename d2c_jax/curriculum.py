@@ -134,11 +134,13 @@ def propose(
     key: jax.Array,
     value_fn: ValueFn | None = None,
     gamma: float = 0.99,
+    *,
+    eps: float,
 ) -> tuple[jax.Array, Metrics]:
     """K curriculum goals (SPEC §5, Eq. 6-7).
 
     Variant "d2c": match slots to distinct pool trajectories by the auction on Eq. 7 costs;
-    goal j = matched candidate + U[-c, c] * mask (c = cfg.eps), clipped. "value": the same
+    goal j = matched candidate + U[-c, c] * mask (c = eps), clipped. "value": the same
     with w' = w - (1 - gamma) V(s0, phi(s)). "none": the slots themselves (fresh desired
     examples). Until all P pool entries are valid, "d2c"/"value" return the warm-up goals.
     The matching always runs and `jnp.where` selects (no `lax.cond`): under vmap over
@@ -155,6 +157,7 @@ def propose(
       key: PRNG key.
       value_fn: V over goals (P, T', d) -> (P, T'); required by variant "value".
       gamma: SAC discount, for the (1 - gamma) scale of the "+Value" ablation.
+      eps: half-width c of the goal noise (Table 3 'eps', the classifier's eps).
     Returns:
       goals (K, d) and metrics {"curriculum/distance", "curriculum/matched_cost",
       "curriculum/pool_full"}.
@@ -172,7 +175,7 @@ def propose(
         )
         cols = matching.auction(cost, max_iters=cfg.auction_max_iters)  # (K,) distinct
         rows = jnp.arange(cfg.n_slots)
-        matched = candidates[rows, cols] + _uniform_noise(env, key_noise, slots.shape, cfg.eps)
+        matched = candidates[rows, cols] + _uniform_noise(env, key_noise, slots.shape, eps)
         full = pool_full(pool_valid, pool_ag.shape[0])
         warm = warmup_goals(env, start_goal, cfg.n_slots, key_warm)
         goals = jnp.where(full, env.clip_goal(matched), warm)

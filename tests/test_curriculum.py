@@ -58,14 +58,15 @@ def _lines(ends, horizon=11):
 # Pool: 1 ends next to mode 0, 3 next to mode 1, 4 and 5 nearer the modes than 0 and 2.
 ENDS = [[-5.0, 3.0], [15.9, 16.1], [3.0, -4.0], [-15.8, -16.0], [14.0, 14.5], [-13.0, -14.0]]
 POOL = _lines(ENDS)
-CFG = CurriculumConfig(n_slots=4, pool_size=6, cost_stride=4, eps=0.5)
+CFG = CurriculumConfig(n_slots=4, pool_size=6, cost_stride=4)
+EPS = 0.5  # curriculum goal noise half-width
 
 
 def _propose(cfg, env, net, params, value_fn=None):
     """Jitted `propose` with the pool and its validity traced."""
     return jax.jit(
         lambda pool, valid, start, key: cur.propose(
-            cfg, env, net, params, pool, valid, start, key, value_fn=value_fn
+            cfg, env, net, params, pool, valid, start, key, value_fn=value_fn, eps=EPS
         )
     )
 
@@ -172,7 +173,7 @@ def test_value_variant_trades_cost_against_value():
     )
     assert np.linalg.norm(goals - ENV.goal_points, axis=-1).max() < 1.5
     with pytest.raises(ValueError, match="value_fn"):
-        cur.propose(cfg, ENV, DIST, NO_PARAMS, POOL, 6, jnp.zeros(2), jax.random.key(0))
+        cur.propose(cfg, ENV, DIST, NO_PARAMS, POOL, 6, jnp.zeros(2), jax.random.key(0), eps=EPS)
 
 
 def test_warmup_fallback_with_an_empty_pool():
@@ -247,6 +248,6 @@ def test_propose_on_the_medium_maze(medium_maze):
     # Each goal is a (subsampled) pool state plus U[-eps, eps]^2 noise.
     states = np.asarray(cur.subsample(pool, cfg.cost_stride)).reshape(-1, 2)
     gap = np.abs(np.asarray(goals)[:, None] - states[None]).max(-1).min(-1)
-    assert np.all(gap <= cfg.eps + 1e-5)
+    assert np.all(gap <= EPS + 1e-5)
     assert set(m) == {"curriculum/distance", "curriculum/matched_cost", "curriculum/pool_full"}
     assert np.isfinite(float(m["curriculum/distance"]))
