@@ -7,6 +7,7 @@ so a run killed mid-write never leaves a half checkpoint that looks valid; the l
 
 from __future__ import annotations
 
+import contextlib
 import logging
 import pathlib
 
@@ -19,6 +20,18 @@ logging.getLogger("absl").setLevel(logging.WARNING)
 
 class CheckpointError(Exception):
     """A checkpoint is missing or cannot be read."""
+
+
+@contextlib.contextmanager
+def _quiet_orbax():
+    """Silences orbax's own error logs: a broken checkpoint is reported once, by us."""
+    absl_logger = logging.getLogger("absl")
+    level = absl_logger.level
+    absl_logger.setLevel(logging.CRITICAL)
+    try:
+        yield
+    finally:
+        absl_logger.setLevel(level)
 
 
 def _is_key(x) -> bool:
@@ -41,11 +54,13 @@ class Checkpointer:
     def __init__(self, directory: str | pathlib.Path, max_to_keep: int = 3):
         self.directory = pathlib.Path(directory).absolute()
         options = ocp.CheckpointManagerOptions(max_to_keep=max_to_keep, create=True)
-        self._manager = ocp.CheckpointManager(self.directory, options=options)
+        with _quiet_orbax():
+            self._manager = ocp.CheckpointManager(self.directory, options=options)
 
     def latest_step(self) -> int | None:
         """The newest complete checkpoint's step, or None."""
-        return self._manager.latest_step()
+        with _quiet_orbax():
+            return self._manager.latest_step()
 
     def save(self, step: int, tree) -> None:
         """Writes `tree` at `step` and waits until it is on disk."""
@@ -60,10 +75,12 @@ class Checkpointer:
         """
         abstract = jax.tree.map(ocp.utils.to_shape_dtype_struct, _to_storable(like))
         try:
-            stored = self._manager.restore(step, args=ocp.args.StandardRestore(abstract))
+            with _quiet_orbax():
+                stored = self._manager.restore(step, args=ocp.args.StandardRestore(abstract))
         except Exception as err:  # orbax raises many types; all mean "unreadable"
+            first_line = str(err).splitlines()[0] if str(err) else type(err).__name__
             raise CheckpointError(
-                f"cannot read checkpoint {self.directory / str(step)}: {err}"
+                f"cannot read checkpoint {self.directory / str(step)}: {first_line}"
             ) from err
         return _from_storable(stored, like)
 

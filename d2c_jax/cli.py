@@ -60,20 +60,24 @@ def _has_field(cfg, dotted: str) -> bool:
     return _has_field(getattr(cfg, head), rest) if rest else True
 
 
-def apply_override(cfg, dotted: str, text: str):
-    """Returns `cfg` with the field at `dotted` (e.g. 'sac.batch_size') set from `text`."""
+def apply_override(cfg, dotted: str, text: str, flag: str | None = None):
+    """Returns `cfg` with the field at `dotted` (e.g. 'sac.batch_size') set from `text`.
+
+    `flag` is the option as typed, for messages (default: `dotted` with dashes).
+    """
+    flag = flag or dotted.replace("_", "-")
     head, _, rest = dotted.partition(".")
     hints = _field_types(type(cfg))
     if head not in hints:
-        raise UsageError(f"unknown option --{dotted.replace('_', '-')}")
+        raise UsageError(f"unknown option --{flag}")
     if rest:
         sub = getattr(cfg, head)
         if not dataclasses.is_dataclass(sub):
-            raise UsageError(f"unknown option --{dotted.replace('_', '-')}")
-        return dataclasses.replace(cfg, **{head: apply_override(sub, rest, text)})
+            raise UsageError(f"unknown option --{flag}")
+        return dataclasses.replace(cfg, **{head: apply_override(sub, rest, text, flag)})
     if dataclasses.is_dataclass(getattr(cfg, head)):
-        raise UsageError(f"--{head} is a section; set its fields as --{head}.<field>")
-    return dataclasses.replace(cfg, **{head: _convert(text, hints[head], dotted)})
+        raise UsageError(f"--{flag} is a section; set its fields as --{flag}.<field>")
+    return dataclasses.replace(cfg, **{head: _convert(text, hints[head], flag)})
 
 
 class _Parser(argparse.ArgumentParser):
@@ -127,7 +131,7 @@ def parse_args(argv: list[str]) -> tuple[config_lib.TrainConfig, pathlib.Path, b
             if not rest:
                 raise UsageError(f"--{option} needs a value")
             value = rest.pop(0)
-        cfg = apply_override(cfg, option.replace("-", "_"), value)
+        cfg = apply_override(cfg, option.replace("-", "_"), value, option)
     problem = config_lib.validate(cfg)
     if problem:
         raise UsageError(problem)
@@ -135,10 +139,22 @@ def parse_args(argv: list[str]) -> tuple[config_lib.TrainConfig, pathlib.Path, b
     return cfg, out, known.resume
 
 
+def enable_compilation_cache() -> None:
+    """Persists compiled programs (default ~/.cache/d2c_jax/xla), so --resume and repeated
+    runs of the same config skip the compile. JAX_COMPILATION_CACHE_DIR overrides it."""
+    import jax
+
+    if not jax.config.jax_compilation_cache_dir:
+        cache = pathlib.Path.home() / ".cache" / "d2c_jax" / "xla"
+        jax.config.update("jax_compilation_cache_dir", str(cache))
+    jax.config.update("jax_persistent_cache_min_compile_time_secs", 1.0)
+
+
 def main(argv: list[str] | None = None) -> int:
     """Entry point of train.py; returns the exit status."""
     from d2c_jax import trainer
 
+    enable_compilation_cache()
     try:
         cfg, out, resume = parse_args(sys.argv[1:] if argv is None else argv)
         return trainer.train(cfg, out, resume=resume)

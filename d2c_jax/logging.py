@@ -49,10 +49,18 @@ class MetricsWriter:
         self._file.close()
 
 
-def truncate_metrics(path: str | pathlib.Path, last_iteration: int) -> int:
-    """Drops rows whose iteration is beyond `last_iteration` (for --resume); returns rows kept."""
+def truncate_metrics(
+    path: str | pathlib.Path, last_iteration: int, strip_last: tuple[str, ...] = ()
+) -> int:
+    """Drops rows beyond `last_iteration` (for --resume); returns the rows kept.
+
+    Keys of the row at `last_iteration` that start with a prefix in `strip_last` are
+    removed too.
+    """
     path = pathlib.Path(path)
     rows = [r for r in read_metrics(path) if r["iteration"] <= last_iteration]
+    if rows and rows[-1]["iteration"] == last_iteration and strip_last:
+        rows[-1] = {k: v for k, v in rows[-1].items() if not k.startswith(strip_last)}
     tmp = path.with_suffix(".jsonl.tmp")
     tmp.write_text("".join(json.dumps(r) + "\n" for r in rows))
     tmp.replace(path)  # atomic on POSIX

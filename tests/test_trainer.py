@@ -1,0 +1,153 @@
+"""The trainer end to end with the tiny preset: determinism, resume, seeds, bad input."""
+
+import json
+import os
+import pathlib
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+from d2c_jax import cli
+from d2c_jax import logging as logging_lib
+
+ROOT = pathlib.Path(__file__).resolve().parents[1]
+
+
+def run_cli(*args: str, cwd=ROOT, timeout=600) -> subprocess.CompletedProcess:
+    env = {**os.environ, "JAX_PLATFORMS": "cpu"}
+    return subprocess.run(
+        [sys.executable, "train.py", *args], capture_output=True, text=True, cwd=cwd,
+        timeout=timeout, env=env,
+    )
+
+
+def strip_time(rows: list[dict]) -> list[dict]:
+    return [{k: v for k, v in r.items() if not k.startswith("time/")} for r in rows]
+
+
+@pytest.fixture(scope="module")
+def tiny_run(tmp_path_factory):
+    """Two tiny runs of the same seed (in process), and their metrics."""
+    from d2c_jax import trainer
+
+    out = []
+    for name in ("a", "b"):
+        path = tmp_path_factory.mktemp(name) / "run"
+        cfg, _, _ = cli.parse_args(["--env", "medium_maze", "--preset", "tiny"])
+        assert trainer.train(cfg, path) == 0
+        out.append(path)
+    return out
+
+
+def test_tiny_preset_runs_two_iterations_and_writes_files(tiny_run):
+    path = tiny_run[0]
+    rows = logging_lib.read_metrics(path / "metrics.jsonl")
+    assert [r["iteration"] for r in rows] == [1, 2]
+    assert rows[-1]["env_steps"] == 2 * 4 * 100
+    last = rows[-1]
+    assert "eval/success" in last and "curriculum/distance" in last
+    assert all(f"eval/success/{k}" in last for k in range(4))
+    assert 0.0 <= last["eval/success"] <= 1.0
+    assert any(k.startswith("sac/") for k in last) and any(k.startswith("time/") for k in last)
+    json.loads((path / "config.json").read_text())
+    for name in ("success.png", "curriculum.png", "curriculum_distance.png"):
+        assert (path / "plots" / name).read_bytes()[:4] == b"\x89PNG"
+    assert (path / "checkpoints").is_dir()
+
+
+def test_same_seed_gives_identical_metrics(tiny_run):
+    a, b = (strip_time(logging_lib.read_metrics(p / "metrics.jsonl")) for p in tiny_run)
+    assert a == b
+
+
+def test_resume_equals_uninterrupted(tiny_run, tmp_path):
+    from d2c_jax import trainer
+
+    path = tmp_path / "run"
+    cfg, _, _ = cli.parse_args(["--env", "medium_maze", "--preset", "tiny", "--total-steps", "400"])
+    assert trainer.train(cfg, path) == 0  # one iteration, then "killed"
+    cfg, _, _ = cli.parse_args(["--env", "medium_maze", "--preset", "tiny"])
+    assert trainer.train(cfg, path, resume=True) == 0
+    resumed = strip_time(logging_lib.read_metrics(path / "metrics.jsonl"))
+    full = strip_time(logging_lib.read_metrics(tiny_run[0] / "metrics.jsonl"))
+    # The one-iteration run ends with a final evaluation row at iteration 1; resume
+    # truncates back to the checkpoint (iteration 1) and continues.
+    assert [r["iteration"] for r in resumed] == [1, 2]
+    assert resumed[-1] == full[-1]
+
+
+def test_two_seeds_give_per_seed_lists(tmp_path):
+    from d2c_jax import trainer
+
+    cfg, _, _ = cli.parse_args(["--env", "medium_maze", "--preset", "tiny", "--seeds", "2"])
+    assert trainer.train(cfg, tmp_path / "run") == 0
+    last = logging_lib.read_metrics(tmp_path / "run" / "metrics.jsonl")[-1]
+    assert isinstance(last["eval/success"], list) and len(last["eval/success"]) == 2
+    assert isinstance(last["sac/critic_loss"], list) and len(last["sac/critic_loss"]) == 2
+    assert isinstance(last["iteration"], int)
+
+
+@pytest.mark.parametrize(
+    "args, first_line",
+    [
+        (["--env", "nope"], "error: unknown env 'nope'; valid ids: complex_maze"),
+        (["--env", "medium_maze", "--total-steps", "-5"], "error: --total-steps must be >= 0"),
+        (["--env", "medium_maze", "--preset", "huge"], "error: unknown preset 'huge'"),
+        (["--env", "medium_maze", "--sac.nope", "1"], "error: unknown option --sac.nope"),
+        (["--env", "medium_maze", "--sac.batch-size", "x"], "error: --sac.batch-size must be int"),
+    ],
+)
+def test_bad_input_exits_2_with_message(args, first_line, tmp_path):
+    result = run_cli(*args, "--out", str(tmp_path / "r"))
+    assert result.returncode == 2, result.stderr
+    assert result.stderr.splitlines()[0].startswith(first_line), result.stderr
+    assert "Traceback" not in result.stderr
+
+
+def test_resume_with_nothing_to_resume_exits_2(tmp_path):
+    result = run_cli("--env", "medium_maze", "--preset", "tiny", "--out", str(tmp_path), "--resume")
+    assert result.returncode == 2
+    assert result.stderr.splitlines()[0].startswith("error: nothing to resume")
+
+
+def test_unreadable_checkpoint_exits_2(tiny_run, tmp_path):
+    import shutil
+
+    path = tmp_path / "run"
+    shutil.copytree(tiny_run[0], path)
+    for f in (path / "checkpoints").rglob("*"):
+        if f.is_file():
+            f.write_bytes(b"garbage")
+    result = run_cli("--env", "medium_maze", "--preset", "tiny", "--out", str(path), "--resume")
+    assert result.returncode == 2, result.stderr
+    assert result.stderr.splitlines()[0].startswith("error: cannot read checkpoint")
+
+
+def test_overrides_reach_the_config():
+    cfg, out, resume = cli.parse_args(
+        ["--env", "ant", "--preset", "quick", "--sac.batch-size", "128",
+         "--sac.hidden-sizes", "64,64", "--curriculum.variant", "none", "--seed", "3"]
+    )
+    assert cfg.sac.batch_size == 128 and cfg.sac.hidden_sizes == (64, 64)
+    assert cfg.curriculum.variant == "none" and cfg.seed == 3
+    assert str(out) == "runs/ant-quick-3" and not resume
+    assert cfg.classifier.diversity_weight == 2.0  # Table 3, Ant
+
+
+def test_nan_stops_with_status_3_and_keeps_checkpoint(tmp_path):
+    from d2c_jax import trainer
+
+    # An absurd learning rate makes the critic overflow within the tiny run.
+    cfg, _, _ = cli.parse_args(
+        ["--env", "medium_maze", "--preset", "tiny", "--sac.critic-lr", "1e30",
+         "--total-steps", "4000"]
+    )
+    path = tmp_path / "run"
+    with pytest.raises(trainer.RunError) as err:
+        trainer.train(cfg, path)
+    assert err.value.status == 3
+    assert "non-finite" in str(err.value) and "iteration" in str(err.value)
+    rows = logging_lib.read_metrics(path / "metrics.jsonl")
+    assert all(np.isfinite(r.get("sac/critic_loss", 0.0)) for r in rows)
