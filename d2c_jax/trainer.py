@@ -233,10 +233,9 @@ def train_iteration(cfg, comp: Components, ts: TrainState, warmup: jax.Array):
     env = comp.env
     key, k_cur, k_col, k_upd = jax.random.split(ts.key, 4)
     pool_ag, pool_valid = replay.recent_episodes_achieved_goals(ts.replay, cfg.curriculum.pool_size)
-    start_goal = jnp.zeros(env.goal_dim) if not hasattr(env, "start_goal") else env.start_goal
     goals, cur_metrics = curriculum.propose(
         cfg.curriculum, env, comp.classifier_net, ts.classifier.params, pool_ag, pool_valid,
-        jnp.asarray(start_goal, jnp.float32), k_cur, _value_fn(cfg, comp, ts), cfg.sac.gamma,
+        jnp.asarray(env.start_goal, jnp.float32), k_cur, _value_fn(cfg, comp, ts), cfg.sac.gamma,
         eps=cfg.classifier.eps,
     )
     episodes = _collect(cfg, comp, ts, goals, warmup, k_col)

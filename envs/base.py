@@ -82,6 +82,16 @@ class GoalEnv(abc.ABC):
         """Number of desired outcome modes."""
         return int(self.goal_points.shape[0])
 
+    @property
+    def start_goal(self) -> np.ndarray:
+        """(goal_dim,) phi of the start state: the centre of the warm-up curriculum (SPEC §5).
+
+        This default resets once (reset noise included); envs override it with the exact,
+        noiseless value.
+        """
+        state = self.reset_with_goal(jax.random.key(0), np.zeros(self.goal_dim, np.float32))
+        return np.asarray(state.achieved_goal)
+
     def normalize_goal(self, goal: jax.Array) -> jax.Array:
         """Maps goal bounds to [-1, 1]: (..., goal_dim) -> (..., goal_dim)."""
         centre = (self.goal_high + self.goal_low) / 2.0

@@ -235,7 +235,7 @@ class PointMaze(GoalEnv):
         theta = obs[..., 2:3]
         return jnp.concatenate([xy, jnp.sin(theta), jnp.cos(theta), obs[..., 3:] / MAX_SPEED], -1)
 
-    # --- helpers ----------------------------------------------------------------
-    def start_xy(self) -> np.ndarray:
-        """(2,) the start cell's centre (the origin)."""
+    @property
+    def start_goal(self) -> np.ndarray:
+        """(2,) the start cell's centre, the origin."""
         return np.zeros(2, np.float32)

@@ -151,3 +151,16 @@ def test_nan_stops_with_status_3_and_keeps_checkpoint(tmp_path):
     assert "non-finite" in str(err.value) and "iteration" in str(err.value)
     rows = logging_lib.read_metrics(path / "metrics.jsonl")
     assert all(np.isfinite(r.get("sac/critic_loss", 0.0)) for r in rows)
+
+
+def test_schedule_matches_spec_hand_computed_counts():
+    from d2c_jax import config, trainer
+
+    ant = trainer.make_schedule(config.preset("ant", "paper"), horizon=300)
+    assert ant == trainer.Schedule(
+        env_steps=6000, sac_updates=6000, classifier_updates=21, warmup_iterations=1,
+        eval_every=2, total_iterations=500,
+    )
+    maze = trainer.make_schedule(config.preset("medium_maze", "paper"), horizon=100)
+    assert (maze.env_steps, maze.sac_updates, maze.classifier_updates) == (2000, 2000, 16)
+    assert (maze.warmup_iterations, maze.eval_every, maze.total_iterations) == (1, 5, 500)
