@@ -164,3 +164,61 @@ def test_schedule_matches_spec_hand_computed_counts():
     maze = trainer.make_schedule(config.preset("medium_maze", "paper"), horizon=100)
     assert (maze.env_steps, maze.sac_updates, maze.classifier_updates) == (2000, 2000, 16)
     assert (maze.warmup_iterations, maze.eval_every, maze.total_iterations) == (1, 5, 500)
+
+
+def test_sigterm_checkpoints_and_resume_continues(tmp_path):
+    import signal
+    import time
+
+    path = tmp_path / "run"
+    args = [sys.executable, "train.py", "--env", "medium_maze", "--preset", "tiny",
+            "--total-steps", "40000", "--out", str(path)]
+    proc = subprocess.Popen(args, cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                            env={**os.environ, "JAX_PLATFORMS": "cpu"})
+    deadline = time.time() + 300
+    while time.time() < deadline and len(logging_lib.read_metrics(path / "metrics.jsonl")) < 2:
+        time.sleep(0.5)
+    proc.send_signal(signal.SIGTERM)
+    assert proc.wait(timeout=120) == 128 + signal.SIGTERM
+    rows = logging_lib.read_metrics(path / "metrics.jsonl")
+    stopped_at = rows[-1]["iteration"]
+    assert "eval/success" in rows[-1]  # the last row is an evaluation row
+    assert stopped_at < 100
+    steps = sorted(int(p.name) for p in (path / "checkpoints").iterdir() if p.name.isdigit())
+    assert steps[-1] == stopped_at and len(steps) <= 3  # saved on the signal, last 3 kept
+    result = run_cli("--env", "medium_maze", "--preset", "tiny", "--total-steps",
+                     str((stopped_at + 1) * 400), "--out", str(path), "--resume")
+    assert result.returncode == 0, result.stderr
+    assert [r["iteration"] for r in logging_lib.read_metrics(path / "metrics.jsonl")] == list(
+        range(1, stopped_at + 2)
+    )
+
+
+@pytest.mark.parametrize(
+    "override",
+    [
+        ["--curriculum.variant", "value"],
+        ["--curriculum.variant", "none"],
+        ["--reward", "sparse"],
+        ["--classifier.goal-candidates", "buffer_and_desired", "--classifier.n-heads", "4",
+         "--classifier.diversity-weight", "0"],
+    ],
+)
+def test_ablations_run_one_iteration(override):
+    import jax
+    import jax.numpy as jnp
+
+    import envs
+    from d2c_jax import trainer
+
+    cfg, _, _ = cli.parse_args(["--env", "medium_maze", "--preset", "tiny", *override])
+    env = envs.make(cfg.env)
+    comp = trainer.make_components(cfg, env)
+    ts = jax.vmap(lambda k: trainer.init_train_state(cfg, comp, k))(trainer.seed_keys(cfg))
+    step = trainer.make_train_step(cfg, env)
+    for warmup in (True, False):
+        ts, metrics = step(ts, jnp.asarray(warmup))
+    assert bool(metrics["health/params_finite"][0])
+    assert np.isfinite(float(metrics["sac/critic_loss"][0]))
+    if override[1] == "none":  # goals are the desired examples themselves
+        assert float(metrics["curriculum/distance"][0]) == 0.0
