@@ -117,6 +117,25 @@ def p_pseudo(net: Classifier, params: dict, x: jax.Array, g: jax.Array) -> jax.A
     return head_probs(net, params, x, g).mean(axis=-1)
 
 
+def log_p_pseudo(
+    net: Classifier, params: dict, x: jax.Array, g: jax.Array
+) -> tuple[jax.Array, jax.Array]:
+    """(log p_pseudo, log(1 - p_pseudo)) from the logits, exact where p is ~0 or ~1.
+
+    log p = logsumexp_i(log sigmoid(z_i)) - log N, and likewise with -z_i. Far from every
+    positive the heads' probabilities underflow float32 long before their logits stop
+    ranking states, so costs built on these keep that ranking (clipping p would flatten it).
+
+    Returns:
+      two arrays (...,).
+    """
+    logits = net.apply(params, x, g)  # (..., N)
+    log_n = jnp.log(logits.shape[-1])
+    log_p = jax.nn.logsumexp(jax.nn.log_sigmoid(logits), axis=-1) - log_n
+    log_q = jax.nn.logsumexp(jax.nn.log_sigmoid(-logits), axis=-1) - log_n
+    return log_p, log_q
+
+
 def make_reward_fn(net: Classifier, params: dict) -> RewardFn:
     """D2C's intrinsic reward r = p_pseudo(phi(s_{t+1}); g) (paper §4.4).
 

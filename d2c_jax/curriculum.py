@@ -15,11 +15,10 @@ import jax
 import jax.numpy as jnp
 
 from d2c_jax import matching
-from d2c_jax.classifier import Classifier, Metrics, p_pseudo
+from d2c_jax.classifier import Classifier, Metrics, log_p_pseudo, p_pseudo
 from d2c_jax.config import CurriculumConfig
 from envs import GoalEnv, goal_distance
 
-_P_CLIP = 1e-6  # keeps the soft-target BCE of Eq. 7 finite
 
 # value_fn(goals (P, T', d)) -> (P, T') V(s0, g) = min_i Q_i(s0, pi(s0, g), g)
 ValueFn = Callable[[jax.Array], jax.Array]
@@ -61,10 +60,13 @@ def subsample(pool_ag: jax.Array, stride: int) -> jax.Array:
     return pool_ag[:, jnp.asarray(steps)]
 
 
-def soft_bce(p: jax.Array, y: jax.Array) -> jax.Array:
-    """Binary cross-entropy of probability p against a soft target y (elementwise)."""
-    p = jnp.clip(p, _P_CLIP, 1.0 - _P_CLIP)
-    return -(y * jnp.log(p) + (1.0 - y) * jnp.log1p(-p))
+def soft_bce(log_p: jax.Array, log_q: jax.Array, y: jax.Array) -> jax.Array:
+    """Binary cross-entropy against a soft target y, from log p and log(1 - p) (elementwise).
+
+    Taking logs rather than p keeps far-away states ordered by how desired-like they look
+    even where p itself underflows (see `classifier.log_p_pseudo`).
+    """
+    return -(y * log_p + (1.0 - y) * log_q)
 
 
 def cost_matrix(
@@ -93,9 +95,9 @@ def cost_matrix(
       cost (K, P) and candidates (K, P, d), the argmin state of each edge.
     """
     traj = subsample(pool_ag, stride)  # (P, T', d)
-    p = p_pseudo(net, params, traj[None], slots[:, None, None, :])  # (K, P, T')
+    log_p, log_q = log_p_pseudo(net, params, traj[None], slots[:, None, None, :])  # (K, P, T')
     y = p_pseudo(net, params, slots, slots)  # (K,) soft target p_pseudo(g+; g+)
-    w = soft_bce(p, y[:, None, None])  # (K, P, T')
+    w = soft_bce(log_p, log_q, y[:, None, None])  # (K, P, T')
     if value_fn is not None:
         w = w - value_scale * value_fn(traj)[None]
     best = jnp.argmin(w, axis=-1)  # (K, P)

@@ -120,6 +120,22 @@ def test_cost_matrix_matches_brute_force():
             np.testing.assert_array_equal(cand[j, k], pool[k, steps[int(w.argmin())]])
 
 
+def test_cost_keeps_ranking_where_p_underflows():
+    """Far from the slot p_pseudo underflows float32 (logit -300 and below), yet states
+    nearer the slot still cost less: the Eq. 7 BCE is taken in log space."""
+    sharp = DistanceNet(scale=0.5)
+    slots = jnp.array([[16.0, 16.0]])
+    far = jnp.array([[[0.0, 0.0], [4.0, 4.0]], [[-8.0, 0.0], [-6.0, 0.0]]])  # (2, 2, 2)
+    assert float(clf.p_pseudo(sharp, NO_PARAMS, far[0, 1], slots[0])) == 0.0  # underflow
+    cost, cand = cur.cost_matrix(sharp, NO_PARAMS, slots, far, 1)
+    np.testing.assert_array_equal(cand[0, 0], [4.0, 4.0])
+    # Exact BCE: y softplus(-z) + (1 - y) softplus(z), y = p(g+; g+) = sigmoid(4).
+    logit, y = 4.0 - 2 * 12.0**2 / 0.5, 1.0 / (1.0 + np.exp(-4.0))
+    expected = y * np.logaddexp(0.0, -logit) + (1 - y) * np.logaddexp(0.0, logit)
+    assert float(cost[0, 0]) == pytest.approx(expected, rel=1e-5)
+    assert float(cost[0, 0]) < float(cost[0, 1])
+
+
 def test_value_variant_subtracts_scaled_value():
     slots = jnp.array([[16.0, 16.0], [-16.0, -16.0]])
     base, _ = cur.cost_matrix(DIST, NO_PARAMS, slots, POOL, 4)
@@ -161,12 +177,12 @@ def test_value_variant_trades_cost_against_value():
     slots = jnp.array([[16.0, 16.0], [-16.0, -16.0]])
     costs = {
         v: np.asarray(cur.cost_matrix(DIST, NO_PARAMS, slots, POOL, 4, value_fn(v), 0.01)[0])
-        for v in (100.0, 2000.0)
+        for v in (100.0, 1e5)
     }
     # V <= 1/(1-gamma) = 100: a bonus of at most 1 cannot beat reaching the mode (w ~ 0.1
-    # against ~13.6 for a trajectory that never gets near it): 1 and 3 stay the cheapest.
+    # against more for a trajectory that never gets near it): 1 and 3 stay the cheapest.
     np.testing.assert_array_equal(costs[100.0].argmin(1), [1, 3])
-    np.testing.assert_array_equal(costs[2000.0][:, [0, 2]] < costs[2000.0][:, [1, 3]], True)
+    np.testing.assert_array_equal(costs[1e5][:, [0, 2]] < costs[1e5][:, [1, 3]], True)
     cfg = dataclasses.replace(CFG, variant="value", n_slots=2)
     goals, m = _propose(cfg, ENV, DIST, NO_PARAMS, value_fn(100.0))(
         POOL, 6, jnp.zeros(2), jax.random.key(0)
