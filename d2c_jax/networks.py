@@ -1,0 +1,186 @@
+"""Actor and twin critic of goal-conditioned SAC (SPEC §4, Haarnoja et al. 2018).
+
+Both networks take already-normalised features `actor_input(env, obs, goal)` =
+concat(env.normalize_obs(obs), env.normalize_goal(goal)); the critic also takes the
+action. The twin critic is one flax module whose parameters are a stacked pytree with
+leading axis 2 (`nn.vmap`), so both Q-heads run as one batched matmul.
+
+The actor is a tanh-squashed Gaussian. Two details keep it numerically healthy (SPEC §4):
+  * the log-std is squashed smoothly into [log_std_min, log_std_max] with a tanh, so it
+    keeps a gradient everywhere (a hard clip has none outside its range, and a collapsed
+    policy could then never regain entropy);
+  * the tanh change of variables uses log(1 - tanh(u)^2) = 2 (log 2 - u - softplus(-2u)),
+    exact and finite for every u (the naive log(1 - a^2 + 1e-6) has no gradient once
+    float32 tanh saturates).
+"""
+
+from __future__ import annotations
+
+import math
+from typing import NamedTuple
+
+import flax.linen as nn
+import jax
+import jax.numpy as jnp
+
+from d2c_jax.config import SACConfig
+
+N_CRITICS = 2
+"""Members of the twin critic (clipped double-Q)."""
+
+
+class MLP(nn.Module):
+    """ReLU MLP with a linear output layer."""
+
+    hidden_sizes: tuple[int, ...]
+    out_dim: int
+
+    @nn.compact
+    def __call__(self, x: jax.Array) -> jax.Array:
+        for width in self.hidden_sizes:
+            x = nn.relu(nn.Dense(width)(x))
+        return nn.Dense(self.out_dim)(x)
+
+
+class Actor(nn.Module):
+    """Gaussian policy head before the tanh squashing.
+
+    Returns:
+      mean (..., action_dim) and log_std (..., action_dim) in [log_std_min, log_std_max].
+    """
+
+    action_dim: int
+    hidden_sizes: tuple[int, ...]
+    log_std_min: float = -10.0
+    log_std_max: float = 2.0
+
+    @nn.compact
+    def __call__(self, features: jax.Array) -> tuple[jax.Array, jax.Array]:
+        out = MLP(self.hidden_sizes, 2 * self.action_dim)(features)
+        mean, raw = jnp.split(out, 2, axis=-1)
+        # SPEC §4: log sigma = lo + (hi - lo)/2 (tanh(x) + 1), smooth, never a hard clip.
+        half_range = 0.5 * (self.log_std_max - self.log_std_min)
+        log_std = self.log_std_min + half_range * (jnp.tanh(raw) + 1.0)
+        return mean, log_std
+
+
+class QNetwork(nn.Module):
+    """One critic Q(s, a, g): (..., feat_dim), (..., action_dim) -> (...,)."""
+
+    hidden_sizes: tuple[int, ...]
+
+    @nn.compact
+    def __call__(self, features: jax.Array, action: jax.Array) -> jax.Array:
+        x = jnp.concatenate([features, action], axis=-1)
+        return MLP(self.hidden_sizes, 1)(x)[..., 0]
+
+
+class TwinCritic(nn.Module):
+    """`N_CRITICS` independent critics with stacked parameters (leading axis N_CRITICS).
+
+    Returns:
+      q (N_CRITICS, ...) for features (..., feat_dim) and action (..., action_dim).
+    """
+
+    hidden_sizes: tuple[int, ...]
+
+    @nn.compact
+    def __call__(self, features: jax.Array, action: jax.Array) -> jax.Array:
+        stacked = nn.vmap(
+            QNetwork,
+            variable_axes={"params": 0},
+            split_rngs={"params": True},
+            in_axes=None,
+            out_axes=0,
+            axis_size=N_CRITICS,
+        )
+        return stacked(self.hidden_sizes, name="members")(features, action)
+
+
+class SACNetworks(NamedTuple):
+    """The static flax modules of SAC (no parameters: those live in `SACState`)."""
+
+    actor: Actor
+    critic: TwinCritic
+
+
+def make_networks(cfg: SACConfig, env) -> SACNetworks:
+    """Actor and twin critic sized by `cfg.hidden_sizes` and `env.action_dim`."""
+    actor = Actor(
+        action_dim=env.action_dim,
+        hidden_sizes=tuple(cfg.hidden_sizes),
+        log_std_min=cfg.log_std_min,
+        log_std_max=cfg.log_std_max,
+    )
+    return SACNetworks(actor=actor, critic=TwinCritic(hidden_sizes=tuple(cfg.hidden_sizes)))
+
+
+# --- features ---------------------------------------------------------------------------
+
+
+def actor_input(env, obs: jax.Array, goal: jax.Array) -> jax.Array:
+    """Network features: (..., obs_dim), (..., goal_dim) -> (..., feat_dim).
+
+    concat(env.normalize_obs(obs), env.normalize_goal(goal)) (SPEC §4: fixed affine maps,
+    no running statistics). `obs` and `goal` broadcast against each other.
+    """
+    obs_feat = env.normalize_obs(obs)
+    goal_feat = env.normalize_goal(goal)
+    batch = jnp.broadcast_shapes(obs_feat.shape[:-1], goal_feat.shape[:-1])
+    obs_feat = jnp.broadcast_to(obs_feat, batch + obs_feat.shape[-1:])
+    goal_feat = jnp.broadcast_to(goal_feat, batch + goal_feat.shape[-1:])
+    return jnp.concatenate([obs_feat, goal_feat], axis=-1).astype(jnp.float32)
+
+
+def feature_dim(env) -> int:
+    """Width of `actor_input` for this env (traced abstractly, no compute)."""
+    obs = jax.ShapeDtypeStruct((env.obs_dim,), jnp.float32)
+    goal = jax.ShapeDtypeStruct((env.goal_dim,), jnp.float32)
+    return jax.eval_shape(lambda o, g: actor_input(env, o, g), obs, goal).shape[-1]
+
+
+# --- the squashed Gaussian --------------------------------------------------------------
+
+
+def log1m_tanh_sq(u: jax.Array) -> jax.Array:
+    """log(1 - tanh(u)^2) = 2 (log 2 - u - softplus(-2u)), exact and stable for all u."""
+    return 2.0 * (math.log(2.0) - u - jax.nn.softplus(-2.0 * u))
+
+
+def squashed_gaussian_sample(
+    mean: jax.Array, log_std: jax.Array, key: jax.Array
+) -> tuple[jax.Array, jax.Array]:
+    """Reparameterised tanh-Gaussian sample and its log-density (Haarnoja 2018, App. C).
+
+    a = tanh(u), u = mean + std * eps;
+    log pi(a|s) = sum_i [log N(u_i; mean_i, std_i) - log(1 - tanh(u_i)^2)]  (Eq. 21).
+
+    Args:
+      mean, log_std: (..., action_dim).
+      key: PRNG key.
+    Returns:
+      action (..., action_dim) in (-1, 1) and log_prob (...,).
+    """
+    eps = jax.random.normal(key, mean.shape, mean.dtype)
+    u = mean + jnp.exp(log_std) * eps
+    gauss = -0.5 * eps**2 - log_std - 0.5 * math.log(2.0 * math.pi)
+    log_prob = jnp.sum(gauss - log1m_tanh_sq(u), axis=-1)
+    return jnp.tanh(u), log_prob
+
+
+def select_action(
+    nets: SACNetworks,
+    actor_params,
+    features: jax.Array,
+    key: jax.Array,
+    deterministic: bool = False,
+) -> jax.Array:
+    """Action for features (..., feat_dim) -> (..., action_dim) in (-1, 1).
+
+    `deterministic` (static) gives tanh(mean), the evaluation action of SPEC §7.
+    """
+    mean, log_std = nets.actor.apply(actor_params, features)
+    if deterministic:
+        return jnp.tanh(mean)
+    action, _ = squashed_gaussian_sample(mean, log_std, key)
+    return action

@@ -1,0 +1,326 @@
+"""Goal-conditioned soft actor-critic: losses and one fused update (SPEC §4).
+
+Equations cite Haarnoja et al. 2018, "Soft Actor-Critic Algorithms and Applications"
+(arXiv 1812.05905): the soft state value (Eq. 3), the critic objective J_Q (Eq. 5) with
+clipped double-Q, the reparameterised policy objective J_pi (Eq. 7) and the temperature
+objective J(alpha) (Eq. 18); the tanh log-density is Eq. 21 of arXiv 1801.01290.
+
+Schedule (paper Table 2): the critic is updated every update; the actor and log alpha
+every `actor_update_every` updates; the target critic by Polyak averaging every
+`target_update_every` updates. Two equivalent forms are provided:
+  * `update_sac`: one update; the actor step is a `lax.cond` on the update counter. Under
+    `jax.vmap` over seeds the counter is batched and the cond becomes a select, so the
+    actor update is computed (and discarded) on every update: correct, up to ~1.5x slower.
+  * `update_sac_block`: `block_size(cfg)` consecutive updates unrolled statically (e.g.
+    critic; critic + actor + target), no cond at all; equal to `block_size` calls of
+    `update_sac` with keys `jax.random.split(key, block_size)`. Prefer it in the trainer.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import NamedTuple
+
+import jax
+import jax.numpy as jnp
+import optax
+from flax import struct
+
+from d2c_jax import networks
+from d2c_jax.config import SACConfig
+from d2c_jax.her import Batch
+
+Metrics = dict[str, jax.Array]
+
+
+@struct.dataclass
+class SACState:
+    """Parameters and optimiser states of SAC (leading seed axis when vmapped)."""
+
+    actor_params: dict  # actor MLP weights
+    critic_params: dict  # twin critic, leaves (2, ...)
+    target_critic_params: dict  # Polyak-averaged copy of critic_params, leaves (2, ...)
+    log_alpha: jax.Array  # () float32 log of the entropy temperature
+    actor_opt: optax.OptState  # Adam state of the actor
+    critic_opt: optax.OptState  # Adam state of the critic
+    alpha_opt: optax.OptState  # Adam state of log alpha
+    step: jax.Array  # () int32 updates done
+    actor_loss: jax.Array  # () float32 latest actor loss (logged on critic-only updates)
+
+
+class Optimizers(NamedTuple):
+    """The three Adam optimisers (static; their states live in SACState)."""
+
+    actor: optax.GradientTransformation
+    critic: optax.GradientTransformation
+    alpha: optax.GradientTransformation
+
+
+def make_optimizers(cfg: SACConfig) -> Optimizers:
+    """Adam with the learning rates of paper Table 2 (1e-4 each)."""
+    return Optimizers(optax.adam(cfg.actor_lr), optax.adam(cfg.critic_lr), optax.adam(cfg.alpha_lr))
+
+
+def target_entropy(cfg: SACConfig, action_dim: int) -> float:
+    """cfg.target_entropy, or -|A| by default."""
+    return -float(action_dim) if cfg.target_entropy is None else float(cfg.target_entropy)
+
+
+def block_size(cfg: SACConfig) -> int:
+    """Updates per `update_sac_block`: lcm of the actor and target cadences."""
+    return math.lcm(cfg.actor_update_every, cfg.target_update_every)
+
+
+def init_sac(cfg: SACConfig, nets: networks.SACNetworks, env, key: jax.Array) -> SACState:
+    """Fresh parameters: target critic = critic, alpha = cfg.init_alpha."""
+    key_actor, key_critic = jax.random.split(key)
+    feats = jnp.zeros((1, networks.feature_dim(env)), jnp.float32)
+    actor_params = nets.actor.init(key_actor, feats)
+    critic_params = nets.critic.init(key_critic, feats, jnp.zeros((1, env.action_dim)))
+    log_alpha = jnp.asarray(math.log(cfg.init_alpha), jnp.float32)
+    opt = make_optimizers(cfg)
+    return SACState(
+        actor_params=actor_params,
+        critic_params=critic_params,
+        # A copy, not an alias: callers may donate the state to a jitted step.
+        target_critic_params=jax.tree.map(jnp.copy, critic_params),
+        log_alpha=log_alpha,
+        actor_opt=opt.actor.init(actor_params),
+        critic_opt=opt.critic.init(critic_params),
+        alpha_opt=opt.alpha.init(log_alpha),
+        step=jnp.zeros((), jnp.int32),
+        actor_loss=jnp.zeros((), jnp.float32),
+    )
+
+
+# --- losses -----------------------------------------------------------------------------
+
+
+def soft_td_target(
+    nets: networks.SACNetworks,
+    actor_params,
+    target_critic_params,
+    alpha: jax.Array,
+    next_feats: jax.Array,
+    reward: jax.Array,
+    mask: jax.Array,
+    gamma: float,
+    key: jax.Array,
+) -> tuple[jax.Array, jax.Array]:
+    """y = r + gamma * mask * V(s'), V(s') = min_i Qbar_i(s', a') - alpha log pi(a'|s') (Eq. 3).
+
+    Args:
+      next_feats: (B, feat_dim) features of (s', g); reward, mask: (B,).
+    Returns:
+      y (B,) without gradient, and log pi(a'|s') (B,) (a free entropy estimate).
+    """
+    mean, log_std = nets.actor.apply(actor_params, next_feats)
+    next_action, next_log_prob = networks.squashed_gaussian_sample(mean, log_std, key)
+    q_next = nets.critic.apply(target_critic_params, next_feats, next_action)  # (2, B)
+    v_next = jnp.min(q_next, axis=0) - alpha * next_log_prob
+    return jax.lax.stop_gradient(reward + gamma * mask * v_next), next_log_prob
+
+
+def critic_loss(
+    critic_params, nets: networks.SACNetworks, feats: jax.Array, action: jax.Array, y: jax.Array
+) -> tuple[jax.Array, jax.Array]:
+    """J_Q (Eq. 5) summed over the twin critics: 0.5 * sum_i mean_B (Q_i(s, a) - y)^2.
+
+    Args:
+      feats: (B, feat_dim); action: (B, action_dim); y: (B,) soft TD target.
+    Returns:
+      loss () and q (2, B).
+    """
+    q = nets.critic.apply(critic_params, feats, action)  # (2, B)
+    loss = 0.5 * jnp.sum(jnp.mean((q - y[None]) ** 2, axis=-1))
+    return loss, q
+
+
+def actor_loss(
+    actor_params,
+    nets: networks.SACNetworks,
+    critic_params,
+    alpha: jax.Array,
+    feats: jax.Array,
+    key: jax.Array,
+) -> tuple[jax.Array, jax.Array]:
+    """J_pi (Eq. 7, reparameterised): mean_B [alpha log pi(a~|s) - min_i Q_i(s, a~)].
+
+    Returns:
+      loss () and log pi(a~|s) (B,).
+    """
+    mean, log_std = nets.actor.apply(actor_params, feats)
+    action, log_prob = networks.squashed_gaussian_sample(mean, log_std, key)
+    q = jnp.min(nets.critic.apply(critic_params, feats, action), axis=0)  # (B,)
+    return jnp.mean(alpha * log_prob - q), log_prob
+
+
+def alpha_loss(log_alpha: jax.Array, log_prob: jax.Array, entropy_target: float) -> jax.Array:
+    """J(alpha) (Eq. 18) in log alpha: -mean_B log_alpha * (log pi(a|s) + target_entropy)."""
+    return -jnp.mean(log_alpha * jax.lax.stop_gradient(log_prob + entropy_target))
+
+
+# --- the update -------------------------------------------------------------------------
+
+
+def _apply(opt: optax.GradientTransformation, grads, opt_state, params):
+    updates, opt_state = opt.update(grads, opt_state, params)
+    return optax.apply_updates(params, updates), opt_state
+
+
+def _critic_step(cfg: SACConfig, nets, state: SACState, feats, next_feats, batch: Batch, key):
+    """Soft TD target, then one Adam step on J_Q."""
+    alpha = jnp.exp(state.log_alpha)
+    y, next_log_prob = soft_td_target(
+        nets, state.actor_params, state.target_critic_params, alpha, next_feats,
+        batch.reward, batch.mask, cfg.gamma, key,
+    )  # fmt: skip
+    grad_fn = jax.value_and_grad(critic_loss, has_aux=True)
+    (loss, q), grads = grad_fn(state.critic_params, nets, feats, batch.action, y)
+    params, opt_state = _apply(
+        make_optimizers(cfg).critic, grads, state.critic_opt, state.critic_params
+    )
+    metrics = {
+        "sac/critic_loss": loss,
+        "sac/q_mean": jnp.mean(q),
+        "sac/target_mean": jnp.mean(y),
+        "sac/entropy": -jnp.mean(next_log_prob),
+        "sac/reward_mean": jnp.mean(batch.reward),
+    }
+    return state.replace(critic_params=params, critic_opt=opt_state), metrics
+
+
+def _actor_step(cfg: SACConfig, nets, state: SACState, feats, action_dim: int, key) -> SACState:
+    """One Adam step on J_pi (with the just-updated critic), then one on J(alpha)."""
+    opt = make_optimizers(cfg)
+    alpha = jnp.exp(state.log_alpha)
+    grad_fn = jax.value_and_grad(actor_loss, has_aux=True)
+    (loss, log_prob), grads = grad_fn(
+        state.actor_params, nets, state.critic_params, alpha, feats, key
+    )
+    actor_params, actor_opt = _apply(opt.actor, grads, state.actor_opt, state.actor_params)
+    state = state.replace(actor_params=actor_params, actor_opt=actor_opt, actor_loss=loss)
+    if not cfg.learn_alpha:
+        return state
+    # The alpha step reuses log pi(a~|s) of the actor step (pre-update actor).
+    a_grads = jax.grad(alpha_loss)(state.log_alpha, log_prob, target_entropy(cfg, action_dim))
+    log_alpha, alpha_opt = _apply(opt.alpha, a_grads, state.alpha_opt, state.log_alpha)
+    return state.replace(log_alpha=log_alpha, alpha_opt=alpha_opt)
+
+
+def _polyak(state: SACState, tau: jax.Array | float) -> SACState:
+    """Target <- (1 - tau) target + tau critic; tau = 0 leaves it bit-for-bit unchanged."""
+    target = jax.tree.map(
+        lambda t, p: t + tau * (p - t), state.target_critic_params, state.critic_params
+    )
+    return state.replace(target_critic_params=target)
+
+
+def _features(env, batch: Batch) -> tuple[jax.Array, jax.Array]:
+    """(B, feat_dim) features of (s, g) and (s', g), computed once per update."""
+    feats = networks.actor_input(env, batch.obs, batch.goal)
+    next_feats = networks.actor_input(env, batch.next_obs, batch.goal)
+    return feats, next_feats
+
+
+def _finish(state: SACState, metrics: Metrics) -> tuple[SACState, Metrics]:
+    """Counts the update and adds the actor loss and alpha to its metrics."""
+    metrics = {**metrics, "sac/actor_loss": state.actor_loss, "sac/alpha": jnp.exp(state.log_alpha)}
+    return state.replace(step=state.step + 1), metrics
+
+
+def update_sac(
+    cfg: SACConfig, nets: networks.SACNetworks, state: SACState, batch: Batch, env, key: jax.Array
+) -> tuple[SACState, Metrics]:
+    """One SAC update: critic always; actor + alpha and target on their cadences.
+
+    The actor step runs under `lax.cond` on the counter (a select under vmap, see the
+    module docstring); the target step uses tau or 0, which needs no cond.
+
+    Args:
+      cfg: SAC config (static).
+      nets: the modules.
+      state: SAC state.
+      batch: a Batch with leading axis B (raw obs and goals).
+      env: the env (its normalize_obs / normalize_goal build the features).
+      key: PRNG key.
+    Returns:
+      The new state and flat metrics "sac/*" (scalars).
+    """
+    key_critic, key_actor = jax.random.split(key)
+    feats, next_feats = _features(env, batch)
+    state, metrics = _critic_step(cfg, nets, state, feats, next_feats, batch, key_critic)
+    n = state.step + 1  # this update's 1-based index
+    state = jax.lax.cond(
+        n % cfg.actor_update_every == 0,
+        lambda s: _actor_step(cfg, nets, s, feats, env.action_dim, key_actor),
+        lambda s: s,
+        state,
+    )
+    tau = jnp.where(n % cfg.target_update_every == 0, cfg.tau, 0.0)
+    return _finish(_polyak(state, tau), metrics)
+
+
+def update_sac_block(
+    cfg: SACConfig, nets: networks.SACNetworks, state: SACState, batches: Batch, env, key: jax.Array
+) -> tuple[SACState, Metrics]:
+    """`block_size(cfg)` SAC updates, statically unrolled: no cond, cheap under vmap.
+
+    Equals `block_size(cfg)` calls of `update_sac` with keys `jax.random.split(key, n)`,
+    provided state.step is a multiple of block_size (true when only blocks are used).
+
+    Args:
+      batches: a Batch whose leaves have a leading axis block_size(cfg), then B.
+      (others as `update_sac`)
+    Returns:
+      The new state and the metrics averaged over the block.
+    """
+    n = block_size(cfg)
+    keys = jax.random.split(key, n)
+    all_metrics = []
+    for i in range(n):
+        batch = jax.tree.map(lambda x, i=i: x[i], batches)
+        key_critic, key_actor = jax.random.split(keys[i])
+        feats, next_feats = _features(env, batch)
+        state, metrics = _critic_step(cfg, nets, state, feats, next_feats, batch, key_critic)
+        if (i + 1) % cfg.actor_update_every == 0:
+            state = _actor_step(cfg, nets, state, feats, env.action_dim, key_actor)
+        if (i + 1) % cfg.target_update_every == 0:
+            state = _polyak(state, cfg.tau)
+        state, metrics = _finish(state, metrics)
+        all_metrics.append(metrics)
+    return state, jax.tree.map(lambda *xs: jnp.mean(jnp.stack(xs)), *all_metrics)
+
+
+# --- acting -----------------------------------------------------------------------------
+
+
+def make_policy(nets: networks.SACNetworks, state: SACState, env, deterministic: bool = False):
+    """policy(obs (obs_dim,), goal (goal_dim,), key) -> action (action_dim,), for rollouts.
+
+    `deterministic` gives tanh(mean) (evaluation, SPEC §7); otherwise a sample.
+    """
+
+    def policy(obs: jax.Array, goal: jax.Array, key: jax.Array) -> jax.Array:
+        feats = networks.actor_input(env, obs, goal)
+        return networks.select_action(nets, state.actor_params, feats, key, deterministic)
+
+    return policy
+
+
+def state_value(
+    nets: networks.SACNetworks, state: SACState, env, obs: jax.Array, goals: jax.Array
+) -> jax.Array:
+    """V(s, g) = min_i Q_i(s, pi(s, g), g) with the deterministic action tanh(mean).
+
+    Used by the "+Value" curriculum ablation (appendix C.2).
+
+    Args:
+      obs: (..., obs_dim), broadcast against goals (e.g. one start obs (obs_dim,)).
+      goals: (..., goal_dim).
+    Returns:
+      (...,) values.
+    """
+    feats = networks.actor_input(env, obs, goals)
+    action = networks.select_action(nets, state.actor_params, feats, None, deterministic=True)
+    return jnp.min(nets.critic.apply(state.critic_params, feats, action), axis=0)

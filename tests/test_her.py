@@ -1,0 +1,114 @@
+"""HER 'future' relabelling: same episode, later steps only, ~80 %, rewards recomputed."""
+
+from typing import NamedTuple
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from d2c_jax import her, replay
+from d2c_jax.config import HERConfig, ReplayConfig
+
+H = 5
+STORED_GOAL = -7.0  # never an achieved goal, so relabelled goals are recognisable
+
+
+class Episodes(NamedTuple):
+    obs: jax.Array
+    achieved_goal: jax.Array
+    action: jax.Array
+    goal: jax.Array
+
+
+def buffer_with(ids, n_slots=6) -> replay.ReplayState:
+    """Episodes where obs[e, t] = ag[e, t] = (100 * id + t, id); stored goals = STORED_GOAL."""
+    ids = np.asarray(ids, np.float32)
+    code = 100.0 * ids[:, None] + np.arange(H + 1, dtype=np.float32)[None]  # (n, H + 1)
+    pair = np.stack([code, np.broadcast_to(ids[:, None], code.shape)], -1)
+    eps = Episodes(
+        obs=jnp.asarray(pair),
+        achieved_goal=jnp.asarray(pair),
+        action=jnp.zeros((len(ids), H, 1)),
+        goal=jnp.full((len(ids), H, 2), STORED_GOAL),
+    )
+    state = replay.init_replay(ReplayConfig(capacity=n_slots * H), 2, 1, 2, H)
+    return replay.insert_episodes(state, eps)
+
+
+def reward_first_coordinate(ag_next, goal):
+    """A reward that identifies its inputs: ag_next[0] - 1000 * goal[0]."""
+    return ag_next[..., 0] - 1000.0 * goal[..., 0]
+
+
+@pytest.fixture(scope="module")
+def big_batch():
+    state = buffer_with([3, 4, 5])
+    relabel = jax.jit(her.relabel, static_argnums=(0, 2, 3))
+    return relabel(HERConfig(), state, 20_000, reward_first_coordinate, jax.random.key(0))
+
+
+def test_relabelled_goals_come_from_later_steps_of_the_same_episode(big_batch):
+    b = big_batch
+    relabelled = np.asarray(b.goal[:, 0] != STORED_GOAL)
+    ep_id, t = np.asarray(b.obs[:, 1]), np.asarray(b.obs[:, 0]) % 100
+    goal_id, t_future = np.asarray(b.goal[:, 1]), np.asarray(b.goal[:, 0]) % 100
+    np.testing.assert_array_equal(goal_id[relabelled], ep_id[relabelled])
+    assert np.all(t_future[relabelled] >= t[relabelled] + 1)
+    assert np.all(t_future[relabelled] <= H)
+    # t' is uniform in [t + 1, H]: for t = 0 every future step 1..H appears, about equally.
+    from_start = relabelled & (t == 0)
+    counts = np.bincount(t_future[from_start].astype(int), minlength=H + 1)[1:]
+    assert counts.min() > 0.7 * counts.mean()
+    # The last transition (t = H - 1) can only take the final achieved goal.
+    last = relabelled & (t == H - 1)
+    assert last.any() and np.all(t_future[last] == H)
+    # Not relabelled: the goal active at step t is kept.
+    np.testing.assert_array_equal(b.goal[~relabelled], STORED_GOAL)
+
+
+def test_about_eighty_percent_relabelled(big_batch):
+    frac = float(np.mean(np.asarray(big_batch.goal[:, 0] != STORED_GOAL)))
+    assert abs(frac - 0.8) < 0.015  # 20k Bernoulli(0.8): std 0.003
+
+
+def test_rewards_are_recomputed_on_next_achieved_goal_and_final_goal(big_batch):
+    b = big_batch
+    next_ag = np.asarray(b.next_obs[:, 0])  # obs and achieved goals coincide here
+    np.testing.assert_array_equal(next_ag, np.asarray(b.obs[:, 0]) + 1)
+    expected = next_ag - 1000.0 * np.asarray(b.goal[:, 0])
+    np.testing.assert_allclose(b.reward, expected, rtol=1e-6)
+    np.testing.assert_array_equal(b.mask, 1.0)  # no terminal on success (SPEC §4)
+    assert b.reward.shape == b.mask.shape == (20_000,)
+
+
+@pytest.mark.parametrize("prob, expected", [(0.0, 0.0), (1.0, 1.0)])
+def test_relabel_probability_extremes(prob, expected):
+    b = her.relabel(
+        HERConfig(relabel_prob=prob), buffer_with([1]), 500, reward_first_coordinate,
+        jax.random.key(1),
+    )  # fmt: skip
+    assert float(np.mean(np.asarray(b.goal[:, 0] != STORED_GOAL))) == expected
+
+
+class RadiusEnv:
+    success_radius = 0.5
+
+    def is_success(self, ag, g):
+        return jnp.linalg.norm(ag - g, axis=-1) <= self.success_radius
+
+
+def test_sparse_reward_fn():
+    reward_fn = her.sparse_reward_fn(RadiusEnv())
+    ag = jnp.array([[0.0, 0.0], [0.3, 0.4], [0.3, 0.41], [5.0, 5.0]])
+    np.testing.assert_array_equal(reward_fn(ag, jnp.zeros(2)), [1.0, 1.0, 0.0, 0.0])
+
+
+def test_sparse_reward_with_her_rewards_reached_future_goals():
+    """With the sparse reward, relabelling to t' = t + 1 always pays 1."""
+    state = buffer_with([2])
+    reward_fn = her.sparse_reward_fn(RadiusEnv())
+    b = her.relabel(HERConfig(relabel_prob=1.0), state, 2000, reward_fn, jax.random.key(2))
+    next_step = np.asarray(b.goal[:, 0]) == np.asarray(b.next_obs[:, 0])
+    np.testing.assert_array_equal(np.asarray(b.reward)[next_step], 1.0)
+    np.testing.assert_array_equal(np.asarray(b.reward)[~next_step], 0.0)

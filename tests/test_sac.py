@@ -1,0 +1,280 @@
+"""SAC: analytic probe environments, the update schedule, shapes and determinism.
+
+Probe settings (small nets, lr 1e-3 for speed, gamma 0.8, alpha fixed at 1e-6 ~ 0 so the
+entropy term vanishes from the expected values) are test-only; the losses are the
+library's. The three probes share one compiled program (their parameters are traced).
+"""
+
+from typing import NamedTuple
+
+import chex
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from d2c_jax import her, networks, sac
+from d2c_jax.config import SACConfig
+
+
+class ProbeEnv:
+    """obs (1,), goal (1,), action (1,); identity normalisation."""
+
+    obs_dim, action_dim, goal_dim = 1, 1, 1
+
+    def normalize_obs(self, obs):
+        return obs
+
+    def normalize_goal(self, goal):
+        return goal
+
+
+class SmallEnv:
+    """obs (3,) -> features (3,), goal (2,), action (2,)."""
+
+    obs_dim, action_dim, goal_dim = 3, 2, 2
+
+    def normalize_obs(self, obs):
+        return obs / 2.0
+
+    def normalize_goal(self, goal):
+        return goal / 4.0
+
+
+# gamma 0.8: far from 1, so Q(s0) = gamma is distinguishable from Q(s1) = 1.
+PROBE_CFG = SACConfig(
+    hidden_sizes=(64, 64), batch_size=64, actor_lr=1e-3, critic_lr=1e-3,
+    init_alpha=1e-6, learn_alpha=False, gamma=0.8,
+)  # fmt: skip
+CFG = SACConfig(hidden_sizes=(32, 32), batch_size=16)
+
+
+def random_batch(env, batch_size, key) -> her.Batch:
+    ks = jax.random.split(key, 5)
+    b = batch_size
+    return her.Batch(
+        obs=jax.random.normal(ks[0], (b, env.obs_dim)),
+        action=jax.random.uniform(ks[1], (b, env.action_dim), minval=-1, maxval=1),
+        reward=jax.random.bernoulli(ks[2], 0.3, (b,)).astype(jnp.float32),
+        next_obs=jax.random.normal(ks[3], (b, env.obs_dim)),
+        goal=jax.random.normal(ks[4], (b, env.goal_dim)),
+        mask=jnp.ones((b,)),
+    )
+
+
+class Probe(NamedTuple):
+    """Two states s0 = 0 and s1 = 1 (goal 0); a batch holds a share `first` of s0 -> s1
+    transitions (r = 0, bootstrapped) and otherwise s1 -> terminal with the reward
+    r(a) = c - k (a - a_star)^2. Actions are uniform in [-1, 1]."""
+
+    first: float
+    c: float
+    k: float
+    a_star: float
+
+
+PROBE_ACTIONS = jnp.linspace(-1.0, 1.0, 9)
+
+
+def probe_batch(p: Probe, key) -> her.Batch:
+    b = PROBE_CFG.batch_size
+    first = jnp.arange(b) < p.first * b
+    action = jax.random.uniform(key, (b, 1), minval=-1, maxval=1)
+    obs = jnp.where(first, 0.0, 1.0)[:, None]
+    reward = jnp.where(first, 0.0, p.c - p.k * (action[:, 0] - p.a_star) ** 2)
+    return her.Batch(obs, action, reward, obs + 1.0, jnp.zeros((b, 1)), first.astype(jnp.float32))
+
+
+@jax.jit
+def run_probe(p: Probe, key):
+    """init + 3000 updates; returns Q (2 critics, s0/s1, 9 actions), tanh(mean) at s0/s1."""
+    env = ProbeEnv()
+    nets = networks.make_networks(PROBE_CFG, env)
+
+    def body(s, k):
+        k_batch, k_update = jax.random.split(k)
+        return sac.update_sac(PROBE_CFG, nets, s, probe_batch(p, k_batch), env, k_update)
+
+    k_init, k_run = jax.random.split(key)
+    state = sac.init_sac(PROBE_CFG, nets, env, k_init)
+    state, metrics = jax.lax.scan(body, state, jax.random.split(k_run, 3000))
+    obs = jnp.repeat(jnp.array([0.0, 1.0]), 9)[:, None]
+    feats = networks.actor_input(env, obs, jnp.zeros((18, 1)))
+    q = nets.critic.apply(state.critic_params, feats, jnp.tile(PROBE_ACTIONS, 2)[:, None])
+    policy = sac.make_policy(nets, state, env, deterministic=True)
+    best = jax.vmap(lambda o: policy(o, jnp.zeros(1), None))(jnp.array([[0.0], [1.0]]))
+    return q.reshape(2, 2, 9), best[:, 0], metrics["sac/alpha"]
+
+
+def probe(p: Probe):
+    """Runs a probe (all share one compiled program); alpha must stay fixed at ~0."""
+    q, best, alpha = run_probe(p, jax.random.key(0))
+    np.testing.assert_allclose(alpha, PROBE_CFG.init_alpha, rtol=1e-5)
+    return np.asarray(q), np.asarray(best)
+
+
+# --- probe environments -----------------------------------------------------------------
+
+
+def test_probe_one_step_terminal_reward_one():
+    q, _ = probe(Probe(first=0.0, c=1.0, k=0.0, a_star=0.0))
+    np.testing.assert_allclose(q[:, 1], 1.0, atol=0.05)  # Q(s1, a) = 1 for every a
+
+
+def test_probe_two_steps_reward_at_the_end():
+    """s0 -> s1 (r = 0), s1 -> terminal (r = 1): Q(s1) = 1, Q(s0) = gamma (0.8 here)."""
+    q, _ = probe(Probe(first=0.5, c=1.0, k=0.0, a_star=0.0))
+    np.testing.assert_allclose(q[:, 1], 1.0, atol=0.05)
+    np.testing.assert_allclose(q[:, 0], PROBE_CFG.gamma, atol=0.05)
+
+
+def test_probe_action_dependent_reward_actor_picks_best_action():
+    """One step, r = 1 - (a - 0.3)^2, terminal: Q(s1, a) is that parabola, the actor -> 0.3."""
+    q, best = probe(Probe(first=0.0, c=1.0, k=1.0, a_star=0.3))
+    np.testing.assert_allclose(best[1], 0.3, atol=0.1)
+    parabola = np.broadcast_to(1.0 - (PROBE_ACTIONS - 0.3) ** 2, q[:, 1].shape)
+    np.testing.assert_allclose(q[:, 1], parabola, atol=0.05)
+
+
+# --- losses -----------------------------------------------------------------------------
+
+
+def test_soft_td_target_and_critic_loss_by_hand():
+    env = SmallEnv()
+    nets = networks.make_networks(CFG, env)
+    batch = random_batch(env, 8, jax.random.key(1))._replace(mask=jnp.arange(8) % 2)
+
+    @jax.jit
+    def both(key):
+        state = sac.init_sac(CFG, nets, env, jax.random.key(0))
+        feats = networks.actor_input(env, batch.obs, batch.goal)
+        next_feats = networks.actor_input(env, batch.next_obs, batch.goal)
+        y, logp = sac.soft_td_target(
+            nets, state.actor_params, state.target_critic_params, 0.3, next_feats,
+            batch.reward, batch.mask, 0.9, key,
+        )  # fmt: skip
+        # By hand: the same sample, min over the twins, mask, entropy bonus.
+        mean, log_std = nets.actor.apply(state.actor_params, next_feats)
+        a_next, logp_ref = networks.squashed_gaussian_sample(mean, log_std, key)
+        q_next = nets.critic.apply(state.target_critic_params, next_feats, a_next)
+        v_next = jnp.minimum(q_next[0], q_next[1]) - 0.3 * logp_ref
+        y_ref = batch.reward + 0.9 * batch.mask * v_next
+        loss, q = sac.critic_loss(state.critic_params, nets, feats, batch.action, y)
+        loss_ref = 0.5 * ((q - y) ** 2).mean(-1).sum()
+        alpha_grad = jax.grad(sac.alpha_loss)(jnp.log(0.3), logp, -2.0)
+        return y, y_ref, loss, loss_ref, alpha_grad, -(logp - 2.0).mean()
+
+    y, y_ref, loss, loss_ref, alpha_grad, alpha_grad_ref = both(jax.random.key(2))
+    np.testing.assert_allclose(y, y_ref, rtol=1e-5, atol=1e-6)
+    np.testing.assert_array_equal(y[::2], batch.reward[::2])  # mask 0: no bootstrap
+    np.testing.assert_allclose(loss, loss_ref, rtol=1e-6)
+    np.testing.assert_allclose(alpha_grad, alpha_grad_ref, rtol=1e-5)
+
+
+# --- one update -------------------------------------------------------------------------
+
+
+@pytest.fixture(scope="module")
+def small():
+    env = SmallEnv()
+    nets = networks.make_networks(CFG, env)
+    state = jax.jit(lambda k: sac.init_sac(CFG, nets, env, k))(jax.random.key(0))
+    update = jax.jit(lambda s, b, k: sac.update_sac(CFG, nets, s, b, env, k))
+    batches = [random_batch(env, CFG.batch_size, jax.random.key(10 + i)) for i in range(3)]
+    return env, nets, state, update, batches
+
+
+def test_init_sac(small):
+    env, _, state, _, _ = small
+    for leaf in jax.tree.leaves(state.critic_params):
+        assert leaf.shape[0] == 2
+    chex.assert_trees_all_equal(state.critic_params, state.target_critic_params)
+    np.testing.assert_allclose(jnp.exp(state.log_alpha), 0.3, rtol=1e-6)
+    assert int(state.step) == 0
+    assert sac.target_entropy(CFG, env.action_dim) == -2.0
+
+
+def test_one_update_shapes_finite_metrics_and_schedule(small):
+    _, _, s0, update, batches = small
+    s1, m1 = update(s0, batches[0], jax.random.key(1))
+    chex.assert_trees_all_equal_shapes_and_dtypes(s0, s1)
+    assert all(np.isfinite(x).all() for x in jax.tree.leaves(s1) if x.dtype != jnp.int32)
+    expected = {"sac/critic_loss", "sac/actor_loss", "sac/alpha", "sac/q_mean", "sac/entropy"}
+    assert expected <= set(m1)
+    assert all(np.shape(v) == () and np.isfinite(v) for v in m1.values())
+    assert int(s1.step) == 1
+    # Update 1: only the critic moves (actor, alpha and target every 2 updates).
+    chex.assert_trees_all_equal(s1.actor_params, s0.actor_params)
+    chex.assert_trees_all_equal(s1.target_critic_params, s0.target_critic_params)
+    assert float(s1.log_alpha) == float(s0.log_alpha)
+    assert not np.allclose(*[jax.tree.leaves(p.critic_params)[0] for p in (s0, s1)])
+    # Update 2: actor, alpha and the Polyak target (tau = 0.01) move too.
+    s2, _ = update(s1, batches[1], jax.random.key(2))
+    assert float(s2.log_alpha) != float(s1.log_alpha)
+    for a, b in zip(
+        jax.tree.leaves(s1.actor_params), jax.tree.leaves(s2.actor_params), strict=True
+    ):
+        assert not np.allclose(a, b)
+    tgt = jax.tree.map(lambda t, c: 0.99 * t + 0.01 * c, s1.target_critic_params, s2.critic_params)
+    chex.assert_trees_all_close(s2.target_critic_params, tgt, rtol=1e-5, atol=1e-7)
+
+
+def _three_updates(small, key):
+    _, _, state, update, batches = small
+    for i, batch in enumerate(batches):
+        state, _ = update(state, batch, jax.random.fold_in(key, i))
+    return state
+
+
+def test_same_key_same_parameters_different_key_different(small):
+    a = _three_updates(small, jax.random.key(5))
+    b = _three_updates(small, jax.random.key(5))
+    c = _three_updates(small, jax.random.key(6))
+    chex.assert_trees_all_equal(a, b)
+    assert not np.allclose(jax.tree.leaves(a.actor_params)[0], jax.tree.leaves(c.actor_params)[0])
+
+
+def test_block_equals_two_single_updates(small):
+    env, nets, state, update, batches = small
+    assert sac.block_size(CFG) == 2
+    key = jax.random.key(3)
+    k0, k1 = jax.random.split(key, 2)
+    seq, _ = update(state, batches[0], k0)
+    seq, _ = update(seq, batches[1], k1)
+    stacked = jax.tree.map(lambda x, y: jnp.stack([x, y]), batches[0], batches[1])
+    block = jax.jit(lambda s, b, k: sac.update_sac_block(CFG, nets, s, b, env, k))
+    blk, metrics = block(state, stacked, key)
+    chex.assert_trees_all_close(seq, blk, rtol=1e-5, atol=1e-6)
+    assert int(blk.step) == 2 and np.isfinite(metrics["sac/critic_loss"])
+
+
+def test_update_vmaps_over_seeds(small):
+    """Under vmap the actor cond becomes a select; results equal the unbatched ones."""
+    env, nets, s0, update, batches = small
+    s1, _ = update(s0, batches[0], jax.random.key(7))  # a second, different "seed"
+    seeds = jax.tree.map(lambda a, b: jnp.stack([a, b]), s0, s1)
+    both = jax.tree.map(lambda x: jnp.stack([x, x]), batches[1])
+    vupdate = jax.jit(jax.vmap(lambda s, b, k: sac.update_sac(CFG, nets, s, b, env, k)))
+    keys = jnp.stack([jax.random.key(1), jax.random.key(2)])
+    out, _ = vupdate(seeds, both, keys)
+    out, _ = vupdate(out, both, keys)  # seed 0: a critic-only then a full update, seed 1: v.v.
+    for i, (state, key) in enumerate(((s0, jax.random.key(1)), (s1, jax.random.key(2)))):
+        for _ in range(2):
+            state, _ = update(state, batches[1], key)
+        chex.assert_trees_all_close(
+            jax.tree.map(lambda x, i=i: x[i], out), state, rtol=1e-5, atol=1e-6
+        )
+
+
+def test_policy_and_state_value(small):
+    env, nets, state, _, _ = small
+    policy = sac.make_policy(nets, state, env, deterministic=False)
+    a = policy(jnp.ones(3), jnp.zeros(2), jax.random.key(0))
+    chex.assert_shape(a, (2,))
+    assert np.all(np.abs(a) < 1)
+    v = sac.state_value(nets, state, env, jnp.ones(3), jnp.zeros((4, 5, 2)))
+    chex.assert_shape(v, (4, 5))
+    feats = networks.actor_input(env, jnp.ones(3), jnp.zeros(2))
+    det = networks.select_action(nets, state.actor_params, feats, None, deterministic=True)
+    q = nets.critic.apply(state.critic_params, feats, det)
+    np.testing.assert_allclose(v[0, 0], q.min(), rtol=1e-5)
