@@ -1,0 +1,94 @@
+"""Summarise a training run's learning curve: a plot and a markdown table.
+
+    python -m benchmarks.learning_curve runs/medium_maze-quick-0 --out benchmarks/plots
+
+Prints the evaluation rows (env steps, wall-clock, eval/success per mode), the first
+evaluation at or above the target, and writes `<out>/<run name>_success.png`.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import pathlib
+import sys
+
+import numpy as np
+
+from d2c_jax import logging as logging_lib
+from d2c_jax import plots
+
+
+def eval_rows(rows: list[dict]) -> list[dict]:
+    """Rows that hold an evaluation."""
+    return [r for r in rows if "eval/success" in r]
+
+
+def first_at_or_above(rows: list[dict], target: float) -> dict | None:
+    """The first evaluation row whose mean success (over seeds) reaches `target`."""
+    for r in eval_rows(rows):
+        if logging_lib.mean_of(r["eval/success"]) >= target:
+            return r
+    return None
+
+
+def stays_above(rows: list[dict], target: float) -> dict | None:
+    """The evaluation row from which every later evaluation reaches `target`, or None."""
+    evals = eval_rows(rows)
+    ok = np.array([logging_lib.mean_of(r["eval/success"]) >= target for r in evals])
+    if not ok.size or not ok[-1]:
+        return None
+    below = np.flatnonzero(~ok)
+    return evals[below[-1] + 1 if below.size else 0]
+
+
+def markdown_table(rows: list[dict], every: int = 1) -> str:
+    """Evaluation rows as a markdown table (every `every`-th row, and the last)."""
+    evals = eval_rows(rows)
+    picked = evals[::every] + ([evals[-1]] if evals and (len(evals) - 1) % every else [])
+    modes = sorted(k for k in evals[0] if k.startswith("eval/success/")) if evals else []
+    head = "| env steps | minutes | eval/success | " + " | ".join(m[5:] for m in modes) + " |"
+    lines = [head, "|" + "---|" * (3 + len(modes))]
+    for r in picked:
+        cells = [f"{r['env_steps']:,}", f"{r['time/elapsed_s'] / 60:.1f}",
+                 f"{logging_lib.mean_of(r['eval/success']):.3f}"]
+        cells += [f"{logging_lib.mean_of(r[m]):.2f}" for m in modes]
+        lines.append("| " + " | ".join(cells) + " |")
+    return "\n".join(lines)
+
+
+def main(argv=None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("run", type=pathlib.Path, help="run directory")
+    parser.add_argument("--out", type=pathlib.Path, default=pathlib.Path("benchmarks/plots"))
+    parser.add_argument("--target", type=float, default=0.8)
+    parser.add_argument("--every", type=int, default=5, help="table: every n-th evaluation")
+    args = parser.parse_args(argv)
+    rows = logging_lib.read_metrics(args.run / "metrics.jsonl")
+    if not eval_rows(rows):
+        print(f"error: {args.run} has no evaluation rows", file=sys.stderr)
+        return 2
+    cfg = json.loads((args.run / "config.json").read_text())
+    n_modes = len([k for k in eval_rows(rows)[0] if k.startswith("eval/success/")])
+    args.out.mkdir(parents=True, exist_ok=True)
+    plot = args.out / f"{args.run.name}_success.png"
+    plots.success_curve(rows, n_modes, plot)
+    hit = first_at_or_above(rows, args.target)
+    best = max(eval_rows(rows), key=lambda r: logging_lib.mean_of(r["eval/success"]))
+    print(f"run {args.run} (env {cfg['env']}, preset {cfg['preset']})")
+    if hit:
+        print(f"first eval/success >= {args.target}: {logging_lib.mean_of(hit['eval/success']):.3f}"
+              f" at {hit['env_steps']:,} env steps, {hit['time/elapsed_s'] / 60:.1f} min")
+    print(f"best: {logging_lib.mean_of(best['eval/success']):.3f} at {best['env_steps']:,} steps;"
+          f" last: {logging_lib.mean_of(eval_rows(rows)[-1]['eval/success']):.3f}")
+    stays = stays_above(rows, args.target)
+    if stays:
+        print(f"every evaluation >= {args.target} from {stays['env_steps']:,} env steps "
+              f"({stays['time/elapsed_s'] / 60:.1f} min) on")
+    print(markdown_table(rows, args.every))
+    print(f"plot: {plot}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

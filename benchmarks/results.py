@@ -1,0 +1,21 @@
+"""benchmarks/RESULTS.md: one `## <title>` section per benchmark, replaced in place."""
+
+from __future__ import annotations
+
+import pathlib
+import re
+
+RESULTS = pathlib.Path(__file__).with_name("RESULTS.md")
+HEADER = "# Benchmark results\n\nEach section is written by the command it names.\n"
+
+
+def write_section(title: str, body: str, path: pathlib.Path = RESULTS) -> None:
+    """Replaces (or appends) the section `## title` of RESULTS.md with `body`."""
+    text = path.read_text() if path.exists() else HEADER
+    block = f"## {title}\n\n{body.strip()}\n"
+    pattern = re.compile(rf"^## {re.escape(title)}\n.*?(?=^## |\Z)", re.S | re.M)
+    if pattern.search(text):
+        text = pattern.sub(lambda _: block + "\n", text, count=1)
+    else:
+        text = text.rstrip("\n") + "\n\n" + block
+    path.write_text(text.rstrip("\n") + "\n")
