@@ -31,7 +31,7 @@ class Schedule(NamedTuple):
     """Static per-iteration counts derived from the config and the env (SPEC §2)."""
 
     env_steps: int  # E = num_envs * H
-    sac_updates: int  # M = round(E * utd)
+    sac_updates: int  # M = round(E * utd), rounded to whole update blocks
     classifier_updates: int  # round(f_iters * E / f_update_every)
     warmup_iterations: int  # ceil(seed_steps / E)
     eval_every: int  # iterations between evaluations
@@ -41,9 +41,10 @@ class Schedule(NamedTuple):
 def make_schedule(cfg: config_lib.TrainConfig, horizon: int) -> Schedule:
     """The static schedule of SPEC §2 for `cfg` and an env of this horizon."""
     e = cfg.num_envs * horizon
+    block = sac.block_size(cfg.sac)  # updates come in whole blocks (no cond, see _sac_block)
     return Schedule(
         env_steps=e,
-        sac_updates=max(1, round(e * cfg.utd)),
+        sac_updates=block * max(1, round(e * cfg.utd / block)),
         classifier_updates=round(cfg.classifier.iters * e / cfg.classifier.update_every),
         warmup_iterations=math.ceil(cfg.seed_steps / e),
         eval_every=max(1, math.ceil(cfg.eval_every / e)),
@@ -134,12 +135,22 @@ def _value_fn(cfg, comp: Components, ts: TrainState):
     return value_fn
 
 
-def _sac_update(cfg, comp: Components, ts: TrainState, key) -> tuple[TrainState, dict]:
-    """One SAC update on a HER batch whose rewards come from the current classifier."""
+def _sac_block(cfg, comp: Components, ts: TrainState, key) -> tuple[TrainState, dict]:
+    """`sac.block_size` SAC updates (critic each, actor and target on their cadences).
+
+    Each update gets its own HER batch, with rewards from the current classifier. A
+    statically unrolled block needs no `lax.cond` on the update counter, which under vmap
+    (seeds) would compute the actor update at every step.
+    """
     k_batch, k_upd = jax.random.split(key)
     reward_fn = _reward_fn(cfg, comp, ts.classifier.params)
-    batch = her.relabel(cfg.her, ts.replay, cfg.sac.batch_size, reward_fn, k_batch)
-    new_sac, metrics = sac.update_sac(cfg.sac, comp.sac_nets, ts.sac, batch, comp.env, k_upd)
+    keys = jax.random.split(k_batch, sac.block_size(cfg.sac))
+    batches = jax.vmap(
+        lambda k: her.relabel(cfg.her, ts.replay, cfg.sac.batch_size, reward_fn, k)
+    )(keys)
+    new_sac, metrics = sac.update_sac_block(
+        cfg.sac, comp.sac_nets, ts.sac, batches, comp.env, k_upd
+    )
     return ts.replace(sac=new_sac), metrics
 
 
@@ -169,28 +180,27 @@ def _scan_updates(update, ts: TrainState, n: int, key):
 def _updates(cfg, comp: Components, ts: TrainState, key) -> tuple[TrainState, dict]:
     """M SAC updates interleaved evenly with C classifier updates (SPEC §2 step 4).
 
-    C blocks of (1 classifier update, M // C SAC updates), then the M mod C remaining
-    SAC updates; all counts are static.
+    With n = M / block_size SAC blocks: C rounds of (1 classifier update, n // C SAC
+    blocks), then the n mod C remaining blocks; all counts are static.
     """
-    m, c = comp.schedule.sac_updates, comp.schedule.classifier_updates
-    sac_step = lambda ts, k: _sac_update(cfg, comp, ts, k)  # noqa: E731
+    n = comp.schedule.sac_updates // sac.block_size(cfg.sac)
+    c = comp.schedule.classifier_updates
+    sac_step = lambda ts, k: _sac_block(cfg, comp, ts, k)  # noqa: E731
     clf_step = lambda ts, k: _classifier_update(cfg, comp, ts, k)  # noqa: E731
-    k_blocks, k_rest = jax.random.split(key)
+    k_rounds, k_rest = jax.random.split(key)
     if c == 0:
-        return _scan_updates(sac_step, ts, m, k_blocks)
+        return _scan_updates(sac_step, ts, n, k_rounds)
 
-    def block(ts, k):
+    def one_round(ts, k):
         k_clf, k_sac = jax.random.split(k)
         ts, clf_metrics = clf_step(ts, k_clf)
-        ts, sac_metrics = _scan_updates(sac_step, ts, m // c, k_sac)
+        ts, sac_metrics = _scan_updates(sac_step, ts, n // c, k_sac)
         return ts, {**clf_metrics, **sac_metrics}
 
-    ts, metrics = jax.lax.scan(block, ts, jax.random.split(k_blocks, c))
-    metrics = jax.tree.map(jnp.mean, metrics)
-    ts, rest = _scan_updates(sac_step, ts, m % c, k_rest)
-    if not metrics or m // c == 0:
-        metrics = {**rest, **metrics}
-    return ts, metrics
+    ts, metrics = jax.lax.scan(one_round, ts, jax.random.split(k_rounds, c))
+    ts, rest = _scan_updates(sac_step, ts, n % c, k_rest)
+    # SAC metrics: the rounds' mean where rounds hold SAC updates, else the remainder's.
+    return ts, {**rest, **jax.tree.map(jnp.mean, metrics)}
 
 
 def _collect(cfg, comp: Components, ts: TrainState, goals, warmup, key):
