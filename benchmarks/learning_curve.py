@@ -50,8 +50,11 @@ def markdown_table(rows: list[dict], every: int = 1) -> str:
     head = "| env steps | minutes | eval/success | " + " | ".join(m[5:] for m in modes) + " |"
     lines = [head, "|" + "---|" * (3 + len(modes))]
     for r in picked:
-        cells = [f"{r['env_steps']:,}", f"{r['time/elapsed_s'] / 60:.1f}",
-                 f"{logging_lib.mean_of(r['eval/success']):.3f}"]
+        cells = [
+            f"{r['env_steps']:,}",
+            f"{r['time/elapsed_s'] / 60:.1f}",
+            f"{logging_lib.mean_of(r['eval/success']):.3f}",
+        ]
         cells += [f"{logging_lib.mean_of(r[m]):.2f}" for m in modes]
         lines.append("| " + " | ".join(cells) + " |")
     return "\n".join(lines)
@@ -77,14 +80,20 @@ def main(argv=None) -> int:
     best = max(eval_rows(rows), key=lambda r: logging_lib.mean_of(r["eval/success"]))
     print(f"run {args.run} (env {cfg['env']}, preset {cfg['preset']})")
     if hit:
-        print(f"first eval/success >= {args.target}: {logging_lib.mean_of(hit['eval/success']):.3f}"
-              f" at {hit['env_steps']:,} env steps, {hit['time/elapsed_s'] / 60:.1f} min")
-    print(f"best: {logging_lib.mean_of(best['eval/success']):.3f} at {best['env_steps']:,} steps;"
-          f" last: {logging_lib.mean_of(eval_rows(rows)[-1]['eval/success']):.3f}")
+        print(
+            f"first eval/success >= {args.target}: {logging_lib.mean_of(hit['eval/success']):.3f}"
+            f" at {hit['env_steps']:,} env steps, {hit['time/elapsed_s'] / 60:.1f} min"
+        )
+    print(
+        f"best: {logging_lib.mean_of(best['eval/success']):.3f} at {best['env_steps']:,} steps;"
+        f" last: {logging_lib.mean_of(eval_rows(rows)[-1]['eval/success']):.3f}"
+    )
     stays = stays_above(rows, args.target)
     if stays:
-        print(f"every evaluation >= {args.target} from {stays['env_steps']:,} env steps "
-              f"({stays['time/elapsed_s'] / 60:.1f} min) on")
+        print(
+            f"every evaluation >= {args.target} from {stays['env_steps']:,} env steps "
+            f"({stays['time/elapsed_s'] / 60:.1f} min) on"
+        )
     print(markdown_table(rows, args.every))
     print(f"plot: {plot}")
     return 0

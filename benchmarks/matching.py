@@ -53,7 +53,7 @@ def bench_size(k: int, p: int, repeats: int) -> list[tuple]:
         """Worst relative gap over the problems given (zip stops at the shorter)."""
         return max(
             (total_cost(c.astype(np.float64), np.asarray(a)) - o) / abs(o)
-            for c, a, o in zip(costs, assignments, optimum)
+            for c, a, o in zip(costs, assignments, optimum, strict=False)
         )
 
     auction = jax.jit(matching.auction)
@@ -68,23 +68,56 @@ def bench_size(k: int, p: int, repeats: int) -> list[tuple]:
     one, batch = jnp.asarray(costs[0]), jnp.asarray(costs)
     n_gap = BATCH if k < 1024 else 2  # problems checked against scipy
     rows = []
-    rows.append(("auction (jit)", 1, median_seconds(
-        lambda: auction(one).block_until_ready(), repeats),
-        gap([auction(c) for c in batch[:n_gap]])))
+    rows.append(
+        (
+            "auction (jit)",
+            1,
+            median_seconds(lambda: auction(one).block_until_ready(), repeats),
+            gap([auction(c) for c in batch[:n_gap]]),
+        )
+    )
     if k < 1024:  # 16 padded 2048 x 2048 problems at once: minutes per call on a 2-core CPU
-        rows.append(("auction (jit, vmap)", BATCH, median_seconds(
-            lambda: auction_batch(batch).block_until_ready(), repeats),
-            gap(auction_batch(batch))))
-    rows.append(("scipy linear_sum_assignment", 1, median_seconds(
-        lambda: linear_sum_assignment(costs[0]), repeats), 0.0))
-    rows.append(("scipy, loop over batch", BATCH, median_seconds(
-        lambda: [linear_sum_assignment(c) for c in costs], repeats), 0.0))
+        rows.append(
+            (
+                "auction (jit, vmap)",
+                BATCH,
+                median_seconds(lambda: auction_batch(batch).block_until_ready(), repeats),
+                gap(auction_batch(batch)),
+            )
+        )
+    rows.append(
+        (
+            "scipy linear_sum_assignment",
+            1,
+            median_seconds(lambda: linear_sum_assignment(costs[0]), repeats),
+            0.0,
+        )
+    )
+    rows.append(
+        (
+            "scipy, loop over batch",
+            BATCH,
+            median_seconds(lambda: [linear_sum_assignment(c) for c in costs], repeats),
+            0.0,
+        )
+    )
     if k <= 256:  # optax's Hungarian is O(n^3) sequential steps: minutes at 1024 x 2048
-        rows.append(("optax hungarian (jit)", 1, median_seconds(
-            lambda: hungarian(one).block_until_ready(), repeats), gap([hungarian(c) for c in batch])))
-        rows.append(("optax hungarian (jit, vmap)", BATCH, median_seconds(
-            lambda: hungarian_batch(batch).block_until_ready(), repeats),
-            gap(hungarian_batch(batch))))
+        rows.append(
+            (
+                "optax hungarian (jit)",
+                1,
+                median_seconds(lambda: hungarian(one).block_until_ready(), repeats),
+                gap([hungarian(c) for c in batch]),
+            )
+        )
+        rows.append(
+            (
+                "optax hungarian (jit, vmap)",
+                BATCH,
+                median_seconds(lambda: hungarian_batch(batch).block_until_ready(), repeats),
+                gap(hungarian_batch(batch)),
+            )
+        )
     return rows
 
 

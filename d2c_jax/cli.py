@@ -29,7 +29,7 @@ def _field_types(cls) -> dict[str, object]:
 
 
 def _convert(text: str, annotation, name: str):
-    """Parses `text` as a value of `annotation` (int, float, bool, str, Literal, tuple, X | None)."""
+    """Parses `text` as `annotation`: int, float, bool, str, Literal, tuple or X | None."""
     origin = typing.get_origin(annotation)
     args = typing.get_args(annotation)
     if origin in (typing.Union, types.UnionType):

@@ -75,7 +75,7 @@ class ClassifierConfig:
     diversity_weight: float = 1.0
     """lambda of Eq. 5 (0 = no diversification)."""
     eps: float = 0.5
-    """Half-width c of the noise on desired goals (Eq. 5) and on curriculum goals (Table 3 'eps')."""
+    """Half-width c of the noise on desired goals (Eq. 5) and curriculum goals (Table 3)."""
     update_every: int = 2000
     """Env steps per classifier round (Table 3 'f every')."""
     iters: int = 16

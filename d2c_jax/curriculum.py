@@ -19,7 +19,6 @@ from d2c_jax.classifier import Classifier, Metrics, log_p_pseudo, p_pseudo
 from d2c_jax.config import CurriculumConfig
 from envs import GoalEnv, goal_distance
 
-
 # value_fn(goals (P, T', d)) -> (P, T') V(s0, g) = min_i Q_i(s0, pi(s0, g), g)
 ValueFn = Callable[[jax.Array], jax.Array]
 

@@ -51,8 +51,8 @@ def main(argv=None) -> int:
     out = pathlib.Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     mazes = [envs.make(name) for name in MAZES]
-    fig, axes = plots.map_figure([(env, name) for env, name in zip(mazes, MAZES)])
-    for i, (env, ax) in enumerate(zip(mazes, axes)):
+    fig, axes = plots.map_figure([(env, name) for env, name in zip(mazes, MAZES, strict=True)])
+    for i, (env, ax) in enumerate(zip(mazes, axes, strict=True)):
         trajs = random_rollouts(env, jax.random.key(args.seed + i), args.episodes)
         plots.draw_trajectories(ax, trajs)
     path = out / "random_rollouts.png"

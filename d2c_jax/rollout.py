@@ -96,9 +96,7 @@ def collect(
     return jax.vmap(lambda g, kk: _episode(env, policy, next_goal, g, kk))(goals, keys)
 
 
-def evaluate(
-    env: GoalEnv, policy: Policy, episodes_per_mode: int, key: jax.Array
-) -> jax.Array:
+def evaluate(env: GoalEnv, policy: Policy, episodes_per_mode: int, key: jax.Array) -> jax.Array:
     """SPEC §7: success rate per mode, (n_modes,).
 
     For each mode point, `episodes_per_mode` episodes from the start state (with its reset

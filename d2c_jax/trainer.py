@@ -96,7 +96,9 @@ def init_train_state(cfg: config_lib.TrainConfig, comp: Components, key: jax.Arr
     key, k_sac, k_clf, k_des = jax.random.split(key, 4)
     return TrainState(
         sac=sac.init_sac(cfg.sac, comp.sac_nets, env, k_sac),
-        classifier=classifier.init_classifier(cfg.classifier, comp.classifier_net, env.goal_dim, k_clf),
+        classifier=classifier.init_classifier(
+            cfg.classifier, comp.classifier_net, env.goal_dim, k_clf
+        ),
         replay=replay.init_replay(
             cfg.replay, env.obs_dim, env.action_dim, env.goal_dim, env.horizon
         ),
@@ -145,9 +147,9 @@ def _sac_block(cfg, comp: Components, ts: TrainState, key) -> tuple[TrainState, 
     k_batch, k_upd = jax.random.split(key)
     reward_fn = _reward_fn(cfg, comp, ts.classifier.params)
     keys = jax.random.split(k_batch, sac.block_size(cfg.sac))
-    batches = jax.vmap(
-        lambda k: her.relabel(cfg.her, ts.replay, cfg.sac.batch_size, reward_fn, k)
-    )(keys)
+    batches = jax.vmap(lambda k: her.relabel(cfg.her, ts.replay, cfg.sac.batch_size, reward_fn, k))(
+        keys
+    )
     new_sac, metrics = sac.update_sac_block(
         cfg.sac, comp.sac_nets, ts.sac, batches, comp.env, k_upd
     )
@@ -220,8 +222,13 @@ def _collect(cfg, comp: Components, ts: TrainState, goals, warmup, key):
 
     def next_goal(ag, k):
         return curriculum.post_success_goal(
-            env, comp.classifier_net, ts.classifier.params, ag, k,
-            cfg.curriculum.post_success_candidates, radius_r=cfg.curriculum.post_success_range,
+            env,
+            comp.classifier_net,
+            ts.classifier.params,
+            ag,
+            k,
+            cfg.curriculum.post_success_candidates,
+            radius_r=cfg.curriculum.post_success_range,
         )
 
     return rollout.collect(env, policy, next_goal, goals, cfg.num_envs, key)
@@ -244,8 +251,16 @@ def train_iteration(cfg, comp: Components, ts: TrainState, warmup: jax.Array):
     key, k_cur, k_col, k_upd = jax.random.split(ts.key, 4)
     pool_ag, pool_valid = replay.recent_episodes_achieved_goals(ts.replay, cfg.curriculum.pool_size)
     goals, cur_metrics = curriculum.propose(
-        cfg.curriculum, env, comp.classifier_net, ts.classifier.params, pool_ag, pool_valid,
-        jnp.asarray(env.start_goal, jnp.float32), k_cur, _value_fn(cfg, comp, ts), cfg.sac.gamma,
+        cfg.curriculum,
+        env,
+        comp.classifier_net,
+        ts.classifier.params,
+        pool_ag,
+        pool_valid,
+        jnp.asarray(env.start_goal, jnp.float32),
+        k_cur,
+        _value_fn(cfg, comp, ts),
+        cfg.sac.gamma,
         eps=cfg.classifier.eps,
     )
     episodes = _collect(cfg, comp, ts, goals, warmup, k_col)
@@ -300,8 +315,10 @@ def make_eval_step(cfg: config_lib.TrainConfig, env: envs.GoalEnv):
 def _eval_keys(cfg: config_lib.TrainConfig, iteration: int) -> jax.Array:
     """Evaluation keys per seed, a pure function of (seed, iteration): resume-safe."""
     return jnp.stack(
-        [jax.random.fold_in(jax.random.key(cfg.seed + i + 10_000), iteration)
-         for i in range(cfg.num_seeds)]
+        [
+            jax.random.fold_in(jax.random.key(cfg.seed + i + 10_000), iteration)
+            for i in range(cfg.num_seeds)
+        ]
     )
 
 
@@ -312,7 +329,8 @@ def _is_eval_iteration(iteration: int, sched: Schedule) -> bool:
 
 def _describe(cfg: config_lib.TrainConfig, sched: Schedule) -> str:
     return (
-        f"d2c_jax: env {cfg.env}, preset {cfg.preset}, seeds {cfg.seed}..{cfg.seed + cfg.num_seeds - 1}"
+        f"d2c_jax: env {cfg.env}, preset {cfg.preset}, "
+        f"seeds {cfg.seed}..{cfg.seed + cfg.num_seeds - 1}"
         f", device {jax.devices()[0].platform}:{jax.devices()[0].device_kind}\n"
         f"  {sched.total_iterations} iterations x {sched.env_steps} env steps, "
         f"{sched.sac_updates} SAC + {sched.classifier_updates} classifier updates each, "
@@ -363,27 +381,43 @@ def train(cfg: config_lib.TrainConfig, out, resume: bool = False, quiet: bool = 
     clock = run_loop.Stopwatch()
     status, shown_success = 0, "-"
     with run_loop.catch_stop_signals() as stop, run_loop.make_progress() as progress:
-        task = progress.add_task(cfg.env, total=sched.total_iterations * sched.env_steps,
-                                 completed=start * sched.env_steps, rate=0.0, success="-",
-                                 visible=not quiet)
+        task = progress.add_task(
+            cfg.env,
+            total=sched.total_iterations * sched.env_steps,
+            completed=start * sched.env_steps,
+            rate=0.0,
+            success="-",
+            visible=not quiet,
+        )
         for it in range(start, sched.total_iterations):
             ts, metrics = train_step(ts, jnp.asarray(it < sched.warmup_iterations))
             row = run_loop.host_metrics(metrics, cfg.num_seeds)
             run_loop.check_finite(row, it + 1)
             last = it + 1 == sched.total_iterations or stop.signal is not None
             if _is_eval_iteration(it + 1, sched) or last:
-                row.update(run_loop.host_metrics(eval_step(ts, _eval_keys(cfg, it + 1)), cfg.num_seeds))
+                row.update(
+                    run_loop.host_metrics(eval_step(ts, _eval_keys(cfg, it + 1)), cfg.num_seeds)
+                )
                 goals = jax.device_get(ts.curriculum_goals)
                 row["curriculum/goals"] = goals[0] if cfg.num_seeds == 1 else goals
             lap = clock.lap()
-            row = {"iteration": it + 1, "env_steps": (it + 1) * sched.env_steps, **row,
-                   "time/iteration_s": lap, "time/env_steps_per_s": sched.env_steps / lap,
-                   "time/elapsed_s": clock.elapsed()}
+            row = {
+                "iteration": it + 1,
+                "env_steps": (it + 1) * sched.env_steps,
+                **row,
+                "time/iteration_s": lap,
+                "time/env_steps_per_s": sched.env_steps / lap,
+                "time/elapsed_s": clock.elapsed(),
+            }
             writer.write(row)
             if "eval/success" in row:
                 shown_success = f"{logging_lib.mean_of(row['eval/success']):.2f}"
-            progress.update(task, completed=(it + 1) * sched.env_steps,
-                            rate=sched.env_steps / lap, success=shown_success)
+            progress.update(
+                task,
+                completed=(it + 1) * sched.env_steps,
+                rate=sched.env_steps / lap,
+                success=shown_success,
+            )
             if last or (it + 1) % cfg.checkpoint_every == 0:
                 ckpt.save(it + 1, ts)
             if stop.signal is not None:

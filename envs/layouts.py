@@ -76,7 +76,7 @@ def start_cell(layout: tuple[str, ...]) -> tuple[int, int]:
 
 
 def validate_layout(layout: tuple[str, ...]) -> None:
-    """Raises ValueError unless rows are equal-length, use only '#.S', have one S and a wall ring."""
+    """Raises ValueError unless rows are equal, use only '#.S', hold one S and a wall ring."""
     if not layout or len({len(row) for row in layout}) != 1:
         raise ValueError("layout rows must be non-empty and of equal length")
     if set("".join(layout)) - set("#.S"):

@@ -148,12 +148,19 @@ def build_maze_model(layout: tuple[str, ...], cell_size: float) -> mujoco.MjMode
         agent.add_joint(name=name, type=jtype, axis=axis)
     # Collision bits 0: no contact physics acts on the kinematic agent.
     agent.add_geom(
-        type=mujoco.mjtGeom.mjGEOM_SPHERE, size=[CLEARANCE, 0, 0], rgba=[0.2, 0.4, 0.9, 1],
-        contype=0, conaffinity=0,
+        type=mujoco.mjtGeom.mjGEOM_SPHERE,
+        size=[CLEARANCE, 0, 0],
+        rgba=[0.2, 0.4, 0.9, 1],
+        contype=0,
+        conaffinity=0,
     )
     agent.add_geom(
-        type=mujoco.mjtGeom.mjGEOM_BOX, size=[0.3, 0.05, 0.05], pos=[0.3, 0, 0],
-        rgba=[0.9, 0.2, 0.2, 1], contype=0, conaffinity=0,
+        type=mujoco.mjtGeom.mjGEOM_BOX,
+        size=[0.3, 0.05, 0.05],
+        pos=[0.3, 0, 0],
+        rgba=[0.9, 0.2, 0.2, 1],
+        contype=0,
+        conaffinity=0,
     )
     return spec.compile()
 

@@ -46,7 +46,9 @@ def test_auction_within_k_eps_of_scipy_optimum(shape):
     costs = np.stack([make_problem(rng, k, p, kind) for kind in kinds]).astype(np.float32)
     result = SOLVE(jnp.asarray(costs))
     assert np.asarray(result.converged).all()
-    for cost, assignment, kind in zip(costs.astype(np.float64), result.assignment, kinds):
+    for cost, assignment, kind in zip(
+        costs.astype(np.float64), result.assignment, kinds, strict=True
+    ):
         assert_valid(assignment, k, p)
         rows, cols = linear_sum_assignment(cost)
         optimum = cost[rows, cols].sum()
@@ -69,7 +71,7 @@ def test_jit_vmap_and_plain_call_agree():
     rng = np.random.default_rng(0)
     costs = rng.uniform(-5, 5, (6, 20, 100)).astype(np.float32)
     batched = np.asarray(SOLVE(jnp.asarray(costs)).assignment)
-    for cost, a in zip(costs, batched):
+    for cost, a in zip(costs, batched, strict=True):
         np.testing.assert_array_equal(jax.jit(matching.auction)(jnp.asarray(cost)), a)
     np.testing.assert_array_equal(matching.auction(jnp.asarray(costs[0])), batched[0])
 

@@ -103,7 +103,9 @@ def test_walls_are_solid_over_100k_steps(maze, policy_name):
         # Full speed into the nearest wall, with a random heading error so it also
         # grazes corners and slides along faces.
         to_wall = _toward_nearest_wall(maze, state.achieved_goal)
-        angle = jnp.arctan2(to_wall[1], to_wall[0]) + jax.random.uniform(key, (), minval=-1.2, maxval=1.2)
+        angle = jnp.arctan2(to_wall[1], to_wall[0]) + jax.random.uniform(
+            key, (), minval=-1.2, maxval=1.2
+        )
         turn = jnp.clip(wrap_angle(angle - state.obs[2]), -1.0, 1.0)
         return jnp.stack([1.0, turn])
 
@@ -199,7 +201,9 @@ def test_normalization_maps_reachable_range_to_unit_box(maze):
     d_lo, d_hi = maze.goal_low, maze.goal_high
     corners = jnp.array([d_lo, d_hi])
     np.testing.assert_allclose(maze.normalize_goal(corners), [[-1, -1], [1, 1]], atol=1e-6)
-    obs = jnp.array([[d_lo[0], d_lo[1], -np.pi, -50, -50, -50], [d_hi[0], d_hi[1], 3.0, 50, 50, 50]])
+    obs = jnp.array(
+        [[d_lo[0], d_lo[1], -np.pi, -50, -50, -50], [d_hi[0], d_hi[1], 3.0, 50, 50, 50]]
+    )
     feats = np.asarray(maze.normalize_obs(obs))
     assert feats.shape == (2, 7)
     assert np.abs(feats).max() <= 1.0 + 1e-6

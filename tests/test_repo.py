@@ -28,7 +28,10 @@ def test_ci_runs_exactly_the_readme_test_command():
 def test_demo_writes_picture(tmp_path):
     out = subprocess.run(
         [sys.executable, "-m", "d2c_jax.demo", "--out", str(tmp_path), "--episodes", "4"],
-        capture_output=True, text=True, cwd=ROOT, timeout=300,
+        capture_output=True,
+        text=True,
+        cwd=ROOT,
+        timeout=300,
     )
     assert out.returncode == 0, out.stderr
     png = tmp_path / "random_rollouts.png"
@@ -38,7 +41,10 @@ def test_demo_writes_picture(tmp_path):
 def test_demo_bad_input_exits_2(tmp_path):
     out = subprocess.run(
         [sys.executable, "-m", "d2c_jax.demo", "--out", str(tmp_path), "--episodes", "0"],
-        capture_output=True, text=True, cwd=ROOT, timeout=300,
+        capture_output=True,
+        text=True,
+        cwd=ROOT,
+        timeout=300,
     )
     assert out.returncode == 2
     assert out.stderr.splitlines()[0].startswith("error: --episodes must be positive")

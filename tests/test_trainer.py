@@ -18,8 +18,12 @@ ROOT = pathlib.Path(__file__).resolve().parents[1]
 def run_cli(*args: str, cwd=ROOT, timeout=600) -> subprocess.CompletedProcess:
     env = {**os.environ, "JAX_PLATFORMS": "cpu"}
     return subprocess.run(
-        [sys.executable, "train.py", *args], capture_output=True, text=True, cwd=cwd,
-        timeout=timeout, env=env,
+        [sys.executable, "train.py", *args],
+        capture_output=True,
+        text=True,
+        cwd=cwd,
+        timeout=timeout,
+        env=env,
     )
 
 
@@ -127,8 +131,20 @@ def test_unreadable_checkpoint_exits_2(tiny_run, tmp_path):
 
 def test_overrides_reach_the_config():
     cfg, out, resume = cli.parse_args(
-        ["--env", "sawyer_push", "--preset", "quick", "--sac.batch-size", "128",
-         "--sac.hidden-sizes", "64,64", "--curriculum.variant", "none", "--seed", "3"]
+        [
+            "--env",
+            "sawyer_push",
+            "--preset",
+            "quick",
+            "--sac.batch-size",
+            "128",
+            "--sac.hidden-sizes",
+            "64,64",
+            "--curriculum.variant",
+            "none",
+            "--seed",
+            "3",
+        ]
     )
     assert cfg.sac.batch_size == 128 and cfg.sac.hidden_sizes == (64, 64)
     assert cfg.curriculum.variant == "none" and cfg.seed == 3
@@ -141,8 +157,16 @@ def test_nan_stops_with_status_3_and_keeps_checkpoint(tmp_path):
 
     # An absurd learning rate makes the critic overflow within the tiny run.
     cfg, _, _ = cli.parse_args(
-        ["--env", "medium_maze", "--preset", "tiny", "--sac.critic-lr", "1e30",
-         "--total-steps", "4000"]
+        [
+            "--env",
+            "medium_maze",
+            "--preset",
+            "tiny",
+            "--sac.critic-lr",
+            "1e30",
+            "--total-steps",
+            "4000",
+        ]
     )
     path = tmp_path / "run"
     with pytest.raises(trainer.RunError) as err:
@@ -159,8 +183,12 @@ def test_schedule_matches_spec_hand_computed_counts():
     # config.preset needs no env module, so this holds before envs/ant.py exists.
     ant = trainer.make_schedule(config.preset("ant", "paper"), horizon=300)
     assert ant == trainer.Schedule(
-        env_steps=6000, sac_updates=6000, classifier_updates=21, warmup_iterations=1,
-        eval_every=2, total_iterations=500,
+        env_steps=6000,
+        sac_updates=6000,
+        classifier_updates=21,
+        warmup_iterations=1,
+        eval_every=2,
+        total_iterations=500,
     )
     maze = trainer.make_schedule(config.preset("medium_maze", "paper"), horizon=100)
     assert (maze.env_steps, maze.sac_updates, maze.classifier_updates) == (2000, 2000, 16)
@@ -172,10 +200,25 @@ def test_sigterm_checkpoints_and_resume_continues(tmp_path):
     import time
 
     path = tmp_path / "run"
-    args = [sys.executable, "train.py", "--env", "medium_maze", "--preset", "tiny",
-            "--total-steps", "40000", "--out", str(path)]
-    proc = subprocess.Popen(args, cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
-                            env={**os.environ, "JAX_PLATFORMS": "cpu"})
+    args = [
+        sys.executable,
+        "train.py",
+        "--env",
+        "medium_maze",
+        "--preset",
+        "tiny",
+        "--total-steps",
+        "40000",
+        "--out",
+        str(path),
+    ]
+    proc = subprocess.Popen(
+        args,
+        cwd=ROOT,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        env={**os.environ, "JAX_PLATFORMS": "cpu"},
+    )
     deadline = time.time() + 300
     while time.time() < deadline and len(logging_lib.read_metrics(path / "metrics.jsonl")) < 2:
         time.sleep(0.5)
@@ -187,8 +230,17 @@ def test_sigterm_checkpoints_and_resume_continues(tmp_path):
     assert stopped_at < 100
     steps = sorted(int(p.name) for p in (path / "checkpoints").iterdir() if p.name.isdigit())
     assert steps[-1] == stopped_at and len(steps) <= 3  # saved on the signal, last 3 kept
-    result = run_cli("--env", "medium_maze", "--preset", "tiny", "--total-steps",
-                     str((stopped_at + 1) * 400), "--out", str(path), "--resume")
+    result = run_cli(
+        "--env",
+        "medium_maze",
+        "--preset",
+        "tiny",
+        "--total-steps",
+        str((stopped_at + 1) * 400),
+        "--out",
+        str(path),
+        "--resume",
+    )
     assert result.returncode == 0, result.stderr
     assert [r["iteration"] for r in logging_lib.read_metrics(path / "metrics.jsonl")] == list(
         range(1, stopped_at + 2)
@@ -201,8 +253,14 @@ def test_sigterm_checkpoints_and_resume_continues(tmp_path):
         ["--curriculum.variant", "value"],
         ["--curriculum.variant", "none"],
         ["--reward", "sparse"],
-        ["--classifier.goal-candidates", "buffer_and_desired", "--classifier.n-heads", "4",
-         "--classifier.diversity-weight", "0"],
+        [
+            "--classifier.goal-candidates",
+            "buffer_and_desired",
+            "--classifier.n-heads",
+            "4",
+            "--classifier.diversity-weight",
+            "0",
+        ],
     ],
 )
 def test_ablations_run_one_iteration(override):
