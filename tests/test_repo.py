@@ -25,26 +25,25 @@ def test_ci_runs_exactly_the_readme_test_command():
     assert readme_commands()[1] in ci_lines
 
 
-def test_demo_writes_picture(tmp_path):
-    out = subprocess.run(
-        [sys.executable, "-m", "d2c_jax.demo", "--out", str(tmp_path), "--episodes", "4"],
+def run_demo(out_dir, episodes: int) -> subprocess.CompletedProcess:
+    args = ["--out", str(out_dir), "--episodes", str(episodes)]
+    return subprocess.run(
+        [sys.executable, "-m", "d2c_jax.demo", *args],
         capture_output=True,
         text=True,
         cwd=ROOT,
         timeout=300,
     )
+
+
+def test_demo_writes_picture(tmp_path):
+    out = run_demo(tmp_path, 4)
     assert out.returncode == 0, out.stderr
     png = tmp_path / "random_rollouts.png"
     assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
 
 
 def test_demo_bad_input_exits_2(tmp_path):
-    out = subprocess.run(
-        [sys.executable, "-m", "d2c_jax.demo", "--out", str(tmp_path), "--episodes", "0"],
-        capture_output=True,
-        text=True,
-        cwd=ROOT,
-        timeout=300,
-    )
+    out = run_demo(tmp_path, 0)
     assert out.returncode == 2
     assert out.stderr.splitlines()[0].startswith("error: --episodes must be positive")
