@@ -375,10 +375,12 @@ def train(cfg: config_lib.TrainConfig, out, resume: bool = False, quiet: bool = 
         logging_lib.truncate_metrics(out / "metrics.jsonl", start, strip_last=strip)
     elif (out / "metrics.jsonl").exists():
         (out / "metrics.jsonl").unlink()
-    train_step = make_train_step(cfg, env)
-    eval_step = make_eval_step(cfg, env)
-    writer = logging_lib.MetricsWriter(out / "metrics.jsonl")
     clock = run_loop.Stopwatch()
+    # Compile ahead of time, so time/compile_s is separate from the first iteration.
+    train_step = make_train_step(cfg, env).lower(ts, jnp.asarray(True)).compile()
+    eval_step = make_eval_step(cfg, env).lower(ts, _eval_keys(cfg, 0)).compile()
+    timing = {"time/compile_s": clock.lap()}
+    writer = logging_lib.MetricsWriter(out / "metrics.jsonl")
     status, shown_success = 0, "-"
     with run_loop.catch_stop_signals() as stop, run_loop.make_progress() as progress:
         task = progress.add_task(
@@ -408,8 +410,13 @@ def train(cfg: config_lib.TrainConfig, out, resume: bool = False, quiet: bool = 
                 "time/iteration_s": lap,
                 "time/env_steps_per_s": sched.env_steps / lap,
                 "time/elapsed_s": clock.elapsed(),
+                **timing,
             }
             writer.write(row)
+            if timing and not quiet:  # the first iteration of this process
+                left = (sched.total_iterations - it - 1) * lap / 60
+                progress.console.print(f"  estimated time to finish: {left:.1f} min")
+            timing = {}
             if "eval/success" in row:
                 shown_success = f"{logging_lib.mean_of(row['eval/success']):.2f}"
             progress.update(
