@@ -251,8 +251,8 @@ def test_sigterm_checkpoints_and_resume_continues(tmp_path):
     "override",
     [
         ["--curriculum.variant", "value"],
-        ["--curriculum.variant", "none"],
-        ["--reward", "sparse"],
+        pytest.param(["--curriculum.variant", "none"], marks=pytest.mark.slow),
+        pytest.param(["--reward", "sparse"], marks=pytest.mark.slow),
         [
             "--classifier.goal-candidates",
             "buffer_and_desired",
