@@ -11,7 +11,6 @@ the gap is the total cost above scipy's optimum, relative to the optimum's magni
 from __future__ import annotations
 
 import argparse
-import platform
 import statistics
 import time
 
@@ -123,9 +122,8 @@ def bench_size(k: int, p: int, repeats: int) -> list[tuple]:
 
 def run(repeats: int) -> str:
     """The markdown section."""
-    cpu = platform.processor() or platform.machine()
     lines = [
-        f"Hardware: {jax.devices()[0].device_kind}, {cpu}, {len(jax.devices())} JAX device(s); "
+        f"Hardware: {results.hardware()}; "
         "command `python -m benchmarks.matching --write`; uniform costs in [0, 1]; median "
         "of repeated calls after compilation; gap = (cost − scipy optimum) / optimum, worst "
         f"of {BATCH} problems.",

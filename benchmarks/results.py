@@ -2,8 +2,13 @@
 
 from __future__ import annotations
 
+import os
 import pathlib
+import platform
 import re
+import subprocess
+
+import jax
 
 RESULTS = pathlib.Path(__file__).with_name("RESULTS.md")
 HEADER = "# Benchmark results\n\nEach section is written by the command it names.\n"
@@ -19,3 +24,14 @@ def write_section(title: str, body: str, path: pathlib.Path = RESULTS) -> None:
     else:
         text = text.rstrip("\n") + "\n\n" + block
     path.write_text(text.rstrip("\n") + "\n")
+
+
+def hardware() -> str:
+    """One line naming the CPU (from lscpu), the core count and the JAX devices."""
+    try:
+        out = subprocess.run(["lscpu"], capture_output=True, text=True, check=True).stdout
+        name = next(ln.split(":", 1)[1].strip() for ln in out.splitlines() if "Model name" in ln)
+    except (OSError, subprocess.CalledProcessError, StopIteration):
+        name = platform.processor() or "unknown CPU"
+    devices = ", ".join(str(d) for d in jax.devices())
+    return f"{name}, {os.cpu_count()} cores; JAX devices: {devices}"

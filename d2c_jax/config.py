@@ -7,6 +7,7 @@ Every field has a one-line docstring. Configs are never mutated: override with
 from __future__ import annotations
 
 import dataclasses
+import typing
 from typing import Literal
 
 
@@ -262,3 +263,19 @@ def validate(cfg: TrainConfig) -> str | None:
         if not ok:
             return message
     return None
+
+
+def from_dict(cls, values: dict):
+    """A (nested, frozen) config dataclass from its config.json dict; lists become tuples."""
+    hints = typing.get_type_hints(cls)
+    kwargs = {}
+    for field in dataclasses.fields(cls):
+        if field.name not in values:
+            continue
+        value, hint = values[field.name], hints[field.name]
+        if dataclasses.is_dataclass(hint):
+            value = from_dict(hint, value)
+        elif isinstance(value, list):
+            value = tuple(value)
+        kwargs[field.name] = value
+    return cls(**kwargs)

@@ -9,7 +9,7 @@ import sys
 import numpy as np
 import pytest
 
-from d2c_jax import cli
+from d2c_jax import cli, config, run_loop
 from d2c_jax import logging as logging_lib
 
 ROOT = pathlib.Path(__file__).resolve().parents[1]
@@ -281,3 +281,8 @@ def test_ablations_run_one_iteration(override):
     assert np.isfinite(float(metrics["sac/critic_loss"][0]))
     if override[1] == "none":  # goals are the desired examples themselves
         assert float(metrics["curriculum/distance"][0]) == 0.0
+
+
+def test_config_round_trips_through_config_json():
+    cfg = config.preset("ant", "tiny")
+    assert config.from_dict(config.TrainConfig, json.loads(run_loop.config_to_json(cfg))) == cfg

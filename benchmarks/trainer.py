@@ -1,0 +1,208 @@
+"""Whole-trainer benchmarks: throughput, seed scaling and memory.
+
+    python -m benchmarks.trainer [--parts throughput seeds memory] [--write]
+
+Every number is the steady state of `trainer.make_train_step`, the program `train.py`
+runs: compiled ahead of time, one untimed iteration, then the best of `repeats` timed
+iterations (the mean is within a few % of it on an idle machine).
+
+- throughput: env steps/s on `medium_maze` at SB3's settings (3x512, batch 512, one SAC
+  update per env step, actor and target every update), for SAC+HER alone (sparse reward,
+  no curriculum, no classifier updates) and for full D2C (Table 3 classifier, matching
+  curriculum, intrinsic reward); also at 2x256 with batch 256. 4 parallel episodes per
+  iteration (400 env steps, 400 updates) keep an iteration short on a CPU; the update
+  count per env step is what sets the rate.
+- seeds: the `quick` preset, 1, 4 and 16 vmapped seeds; seconds per iteration, relative
+  to one seed and to running the seeds one after another (n x one seed).
+- memory: the `paper` preset with its 3e6-transition buffer, in a fresh process: peak
+  resident memory after init, after compiling, and after one executed iteration (M set to
+  one SAC block: the buffers and per-update temporaries are those of the real preset),
+  with XLA's own memory analysis of the compiled iteration.
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import json
+import resource
+import subprocess
+import sys
+import time
+
+import jax
+import jax.numpy as jnp
+
+import envs
+from benchmarks import results
+from d2c_jax import config, sac, trainer
+
+
+def sb3_settings(cfg: config.TrainConfig, hidden, batch: int) -> config.TrainConfig:
+    """SB3's schedule: one update per env step, actor and target every update."""
+    return dataclasses.replace(
+        cfg,
+        num_envs=4,
+        utd=1.0,
+        sac=dataclasses.replace(
+            cfg.sac,
+            hidden_sizes=hidden,
+            batch_size=batch,
+            actor_update_every=1,
+            target_update_every=1,
+        ),
+    )
+
+
+def sac_her_only(cfg: config.TrainConfig) -> config.TrainConfig:
+    """D2C's parts switched off: sparse reward, goals from the desired set, no classifier."""
+    return dataclasses.replace(
+        cfg,
+        reward="sparse",
+        curriculum=dataclasses.replace(cfg.curriculum, variant="none"),
+        classifier=dataclasses.replace(cfg.classifier, iters=0),
+    )
+
+
+def iteration_seconds(cfg: config.TrainConfig, repeats: int = 2) -> tuple[float, float]:
+    """(best seconds per iteration, compile seconds) of the vmapped train step."""
+    env = envs.make(cfg.env)
+    comp = trainer.make_components(cfg, env)
+    ts = jax.jit(jax.vmap(lambda k: trainer.init_train_state(cfg, comp, k)))(trainer.seed_keys(cfg))
+    start = time.perf_counter()
+    step = trainer.make_train_step(cfg, env).lower(ts, jnp.asarray(False)).compile()
+    compile_s = time.perf_counter() - start
+    ts, _ = step(ts, jnp.asarray(False))
+    jax.block_until_ready(ts)
+    best = float("inf")
+    for _ in range(repeats):
+        start = time.perf_counter()
+        ts, metrics = step(ts, jnp.asarray(False))
+        jax.block_until_ready((ts, metrics))
+        best = min(best, time.perf_counter() - start)
+    return best, compile_s
+
+
+def env_steps_per_s(cfg: config.TrainConfig) -> float:
+    seconds, _ = iteration_seconds(cfg)
+    sched = trainer.make_schedule(cfg, envs.make(cfg.env).horizon)
+    return cfg.num_seeds * sched.env_steps / seconds
+
+
+def throughput_rows(env_name: str = "medium_maze") -> dict[str, float]:
+    """Env steps/s of d2c_jax SAC+HER and D2C at SB3's settings, two sizes."""
+    base = config.preset(env_name, "paper")
+    out = {}
+    sizes = (("3x512, 512", (512, 512, 512), 512), ("2x256, 256", (256, 256), 256))
+    for label, hidden, batch in sizes:
+        cfg = sb3_settings(base, hidden, batch)
+        out[f"SAC+HER {label}"] = env_steps_per_s(sac_her_only(cfg))
+        out[f"D2C {label}"] = env_steps_per_s(cfg)
+        print(label, out, flush=True)
+    return out
+
+
+def seed_scaling(env_name: str = "medium_maze", seeds=(1, 4, 16)) -> str:
+    rows = [
+        "| vmapped seeds | s / iteration | compile (s) | vs 1 seed | "
+        "vs the seeds run one after another |",
+        "|---|---|---|---|---|",
+    ]
+    one = None
+    for n in seeds:
+        cfg = dataclasses.replace(config.preset(env_name, "quick"), num_seeds=n)
+        seconds, compile_s = iteration_seconds(cfg)
+        one = one or seconds
+        rows.append(
+            f"| {n} | {seconds:.2f} | {compile_s:.0f} | {seconds / one:.2f}x | "
+            f"{seconds / (n * one):.2f} of the time |"
+        )
+        print(rows[-1], flush=True)
+    return "\n".join(rows)
+
+
+# --- memory (child process) ----------------------------------------------------------------
+def peak_rss_gib() -> float:
+    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 2**20
+
+
+def memory_child(env_name: str) -> dict:
+    cfg = config.preset(env_name, "paper")
+    env = envs.make(env_name)
+    # One SAC block per iteration: the same buffers and per-update temporaries.
+    cfg = dataclasses.replace(cfg, utd=sac.block_size(cfg.sac) / (cfg.num_envs * env.horizon))
+    comp = trainer.make_components(cfg, env)
+    out = {"baseline_gib": peak_rss_gib()}
+    ts = jax.jit(jax.vmap(lambda k: trainer.init_train_state(cfg, comp, k)))(trainer.seed_keys(cfg))
+    jax.block_until_ready(ts)
+    out["replay_gib"] = sum(x.nbytes for x in jax.tree.leaves(ts.replay)) / 2**30
+    out["state_gib"] = sum(x.nbytes for x in jax.tree.leaves(ts)) / 2**30
+    out["after_init_gib"] = peak_rss_gib()
+    compiled = trainer.make_train_step(cfg, env).lower(ts, jnp.asarray(True)).compile()
+    out["after_compile_gib"] = peak_rss_gib()
+    analysis = compiled.memory_analysis()
+    out["xla_temp_gib"] = getattr(analysis, "temp_size_in_bytes", float("nan")) / 2**30
+    ts, metrics = compiled(ts, jnp.asarray(True))
+    jax.block_until_ready((ts, metrics))
+    out["after_iteration_gib"] = peak_rss_gib()
+    return out
+
+
+def memory_table(env_names=("medium_maze", "ant")) -> str:
+    rows = [
+        "| env (paper preset) | replay buffer (GiB) | whole TrainState (GiB) | XLA temporaries "
+        "(GiB) | peak RSS after init | after compile | after one iteration |",
+        "|---|---|---|---|---|---|---|",
+    ]
+    for name in env_names:
+        cmd = [sys.executable, "-m", "benchmarks.trainer", "--memory-child", name]
+        out = subprocess.run(cmd, capture_output=True, text=True, check=True)
+        m = json.loads(out.stdout.strip().splitlines()[-1])
+        rows.append(
+            f"| {name} | {m['replay_gib']:.2f} | {m['state_gib']:.2f} | {m['xla_temp_gib']:.2f} "
+            f"| {m['after_init_gib']:.2f} GiB | {m['after_compile_gib']:.2f} GiB | "
+            f"{m['after_iteration_gib']:.2f} GiB |"
+        )
+        print(rows[-1], flush=True)
+    return "\n".join(rows)
+
+
+def main(argv=None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument(
+        "--parts", nargs="+", default=["throughput", "seeds", "memory"],
+        choices=["throughput", "seeds", "memory"],
+    )  # fmt: skip
+    parser.add_argument("--write", action="store_true", help="update benchmarks/RESULTS.md")
+    parser.add_argument("--memory-child", metavar="ENV", help=argparse.SUPPRESS)
+    args = parser.parse_args(argv)
+    if args.memory_child:
+        print(json.dumps(memory_child(args.memory_child)))
+        return 0
+    header = f"Hardware: {results.hardware()}; jax {jax.__version__}."
+    if "throughput" in args.parts:
+        rates = throughput_rows()
+        body = "\n".join(
+            [header, "", "| d2c_jax variant | env steps/s |", "|---|---|"]
+            + [f"| {k} | {v:,.1f} |" for k, v in rates.items()]
+        )
+        print(body)
+        if args.write:
+            results.write_section("Trainer throughput", body)
+    if "seeds" in args.parts:
+        body = f"Command: `python -m benchmarks.trainer --parts seeds --write`. {header}\n\n"
+        body += seed_scaling()
+        print(body)
+        if args.write:
+            results.write_section("Seed scaling", body)
+    if "memory" in args.parts:
+        body = f"Command: `python -m benchmarks.trainer --parts memory --write`. {header}\n\n"
+        body += memory_table()
+        print(body)
+        if args.write:
+            results.write_section("Memory", body)
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -1,0 +1,39 @@
+"""The benchmark's own arithmetic: the SAC update's FLOP count and the results file."""
+
+import numpy as np
+import pytest
+
+from benchmarks import results, sac_update
+
+
+def test_update_flops_by_hand():
+    # hidden (4,), batch 1; actor 8 -> 4 -> 4 (2 x 2 actions), critic 10 -> 4 -> 1.
+    # MACs: actor 8*4 + 4*4 = 48 (first layer 32); critic 10*4 + 4*1 = 44 (first 40).
+    critic_step = 48 + 2 * 44 + 2 * (3 * 44 - 40)  # target actor, target twin, twin fwd+bwd
+    actor_step = 48 + 2 * 44 + 2 * 44 + (2 * 48 - 32)  # actor, twin, twin input grads, actor bwd
+    assert sac_update.update_flops((4,), 1, 1) == 2 * (critic_step + actor_step)
+    assert sac_update.update_flops((4,), 1, 2) == 2 * (critic_step + actor_step / 2)
+
+
+def test_update_flops_paper_size_matches_the_issue_count():
+    # 3x512, batch 512, twin Q: about 8.7 GFLOP with the actor every update, 6.8 every 2nd.
+    assert sac_update.update_flops((512,) * 3, 512, 1) / 1e9 == pytest.approx(8.67, abs=0.01)
+    assert sac_update.update_flops((512,) * 3, 512, 2) / 1e9 == pytest.approx(6.77, abs=0.01)
+
+
+def test_update_flops_agree_with_xla_cost_analysis():
+    """XLA's count of the compiled update (matmuls + elementwise) is within 3% above ours."""
+    _, xla = sac_update.jax_update_rate("small", 1, n_updates=1, time_it=False)
+    ours = sac_update.update_flops(*sac_update.SIZES["small"], 1)
+    assert 1.0 <= xla / ours < 1.03, (xla, ours)
+
+
+def test_write_section_replaces_in_place(tmp_path):
+    path = tmp_path / "RESULTS.md"
+    results.write_section("A", "one", path)
+    results.write_section("B", "two", path)
+    results.write_section("A", "three", path)
+    text = path.read_text()
+    assert text.count("## A") == 1 and "three" in text and "one" not in text
+    assert text.index("## A") < text.index("## B")
+    np.testing.assert_equal(text.endswith("two\n"), True)
