@@ -25,7 +25,6 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import json
-import resource
 import subprocess
 import sys
 import time
@@ -123,7 +122,11 @@ def seed_scaling(env_name: str = "medium_maze", seeds=(1, 4, 16)) -> str:
 
 # --- memory (child process) ----------------------------------------------------------------
 def peak_rss_gib() -> float:
-    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 2**20
+    """This process's peak resident memory (VmHWM; unlike ru_maxrss, reset by exec, so a
+    child does not inherit its parent's peak)."""
+    with open("/proc/self/status") as status:
+        line = next(ln for ln in status if ln.startswith("VmHWM:"))
+    return int(line.split()[1]) / 2**20
 
 
 def memory_child(env_name: str) -> dict:
