@@ -110,22 +110,31 @@ def mjx_rate_in_child(env_name: str, batch: int, steps: int, repeats: int) -> di
 
 
 # --- C MuJoCo ------------------------------------------------------------------------------
+def start_states(model: mujoco.MjModel, batch: int, reset) -> np.ndarray:
+    """(batch, nstate) full physics states, each made by reset(data) on a fresh MjData."""
+    data = mujoco.MjData(model)
+    spec = mujoco.mjtState.mjSTATE_FULLPHYSICS
+    state = np.empty((batch, mujoco.mj_stateSize(model, spec)))
+    for i in range(batch):
+        reset(data)
+        mujoco.mj_getState(model, data, state[i], spec)
+    return state
+
+
 def ant_c_inputs(env, batch: int, steps: int, rng: np.random.Generator):
     """Ant: reset-noise start states (batch, nstate) and held torques (batch, steps*5, 8)."""
     from envs import ant
 
     model = env.mj_model
-    data = mujoco.MjData(model)
-    spec = mujoco.mjtState.mjSTATE_FULLPHYSICS
-    state = np.empty((batch, mujoco.mj_stateSize(model, spec)))
-    for i in range(batch):
+
+    def reset(data):
         mujoco.mj_resetData(model, data)
-        data.qpos[:] = env.start_qpos + rng.uniform(
-            -ant.RESET_QPOS_NOISE, ant.RESET_QPOS_NOISE, model.nq
-        )
+        noise = ant.RESET_QPOS_NOISE
+        data.qpos[:] = env.start_qpos + rng.uniform(-noise, noise, model.nq)
         data.qpos[3:7] /= np.linalg.norm(data.qpos[3:7])
         data.qvel[:] = ant.RESET_QVEL_STD * rng.standard_normal(model.nv)
-        mujoco.mj_getState(model, data, state[i], spec)
+
+    state = start_states(model, batch, reset)
     torques = rng.uniform(-1.0, 1.0, (batch, steps, 1, model.nu))
     control = np.repeat(torques, ant.N_SUBSTEPS, axis=2).reshape(batch, -1, model.nu)
     return state, control, mujoco.mjtState.mjSTATE_CTRL
@@ -135,14 +144,11 @@ def sawyer_c_inputs(env, batch: int, steps: int, rng: np.random.Generator):
     """Sawyer: start states with peg noise and (finger ctrl 2 + mocap xyz 3) per substep."""
     from envs import sawyer_peg as sp
 
-    model = env.mj_model
-    data = mujoco.MjData(model)
-    spec = mujoco.mjtState.mjSTATE_FULLPHYSICS
-    state = np.empty((batch, mujoco.mj_stateSize(model, spec)))
-    for i in range(batch):
-        mujoco.mj_resetDataKeyframe(model, data, 0)
+    def reset(data):
+        mujoco.mj_resetDataKeyframe(env.mj_model, data, 0)
         data.qpos[5:7] += rng.uniform(-sp.PEG_NOISE, sp.PEG_NOISE, 2)
-        mujoco.mj_getState(model, data, state[i], spec)
+
+    state = start_states(env.mj_model, batch, reset)
     actions = rng.uniform(-1.0, 1.0, (batch, steps, 4))
     target = np.broadcast_to(sp.HAND_START, (batch, 3)).copy()
     mocap = np.empty((batch, steps, sp.N_SUBSTEPS, 3))

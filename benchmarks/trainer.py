@@ -1,6 +1,8 @@
 """Whole-trainer benchmarks: throughput, seed scaling and memory.
 
-    python -m benchmarks.trainer [--parts throughput seeds memory] [--write]
+    python -m benchmarks.trainer [--parts throughput seeds memory]
+
+prints the numbers; `python -m benchmarks.run` writes them into RESULTS.md.
 
 Every number is the steady state of `trainer.make_train_step`, the program `train.py`
 runs: compiled ahead of time, one untimed iteration, then the best of `repeats` timed
@@ -33,7 +35,6 @@ import jax
 import jax.numpy as jnp
 
 import envs
-from benchmarks import results
 from d2c_jax import config, sac, trainer
 
 
@@ -176,34 +177,20 @@ def main(argv=None) -> int:
         "--parts", nargs="+", default=["throughput", "seeds", "memory"],
         choices=["throughput", "seeds", "memory"],
     )  # fmt: skip
-    parser.add_argument("--write", action="store_true", help="update benchmarks/RESULTS.md")
     parser.add_argument("--memory-child", metavar="ENV", help=argparse.SUPPRESS)
     args = parser.parse_args(argv)
     if args.memory_child:
         print(json.dumps(memory_child(args.memory_child)))
         return 0
-    header = f"Hardware: {results.hardware()}; jax {jax.__version__}."
-    if "throughput" in args.parts:
-        rates = throughput_rows()
-        body = "\n".join(
-            [header, "", "| d2c_jax variant | env steps/s |", "|---|---|"]
-            + [f"| {k} | {v:,.1f} |" for k, v in rates.items()]
-        )
-        print(body)
-        if args.write:
-            results.write_section("Trainer throughput", body)
-    if "seeds" in args.parts:
-        body = f"Command: `python -m benchmarks.trainer --parts seeds --write`. {header}\n\n"
-        body += seed_scaling()
-        print(body)
-        if args.write:
-            results.write_section("Seed scaling", body)
-    if "memory" in args.parts:
-        body = f"Command: `python -m benchmarks.trainer --parts memory --write`. {header}\n\n"
-        body += memory_table()
-        print(body)
-        if args.write:
-            results.write_section("Memory", body)
+    parts = {
+        "throughput": lambda: "\n".join(
+            f"{k}: {v:,.1f} env steps/s" for k, v in throughput_rows().items()
+        ),
+        "seeds": seed_scaling,
+        "memory": memory_table,
+    }
+    for part in args.parts:
+        print(f"{part}:\n{parts[part]()}", flush=True)
     return 0
 
 
