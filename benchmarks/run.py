@@ -60,6 +60,11 @@ def throughput_section() -> str:
     )
 
 
+def matching_section() -> str:
+    """The auction against the references, and the curriculum step's share of an iteration."""
+    return f"{matching.run(repeats=5)}\n\n{trainer.curriculum_share()}"
+
+
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--only", nargs="+", default=list(PARTS), choices=PARTS)
@@ -68,7 +73,7 @@ def main(argv=None) -> int:
         "throughput": ("Training throughput vs SB3", throughput_section),
         "sac_update": ("SAC update", lambda: sac_update.run(list(sac_update.SIZES))),
         "envs": ("Environments", lambda: envs_bench.run(ENV_NAMES, (1, 64, 1024), 3)),
-        "matching": ("Matching", lambda: matching.run(repeats=5)),
+        "matching": ("Matching", matching_section),
         "seeds": ("Seed scaling", trainer.seed_scaling),
         "memory": ("Memory", trainer.memory_table),
     }

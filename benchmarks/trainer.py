@@ -1,6 +1,6 @@
 """Whole-trainer benchmarks: throughput, seed scaling and memory.
 
-    python -m benchmarks.trainer [--parts throughput seeds memory]
+    python -m benchmarks.trainer [--parts throughput seeds memory curriculum]
 
 prints the numbers; `python -m benchmarks.run` writes them into RESULTS.md.
 
@@ -33,9 +33,10 @@ import time
 
 import jax
 import jax.numpy as jnp
+import numpy as np
 
 import envs
-from d2c_jax import config, sac, trainer
+from d2c_jax import config, curriculum, sac, trainer
 
 
 def sb3_settings(cfg: config.TrainConfig, hidden, batch: int) -> config.TrainConfig:
@@ -121,6 +122,47 @@ def seed_scaling(env_name: str = "medium_maze", seeds=(1, 4, 16)) -> str:
     return "\n".join(rows)
 
 
+def curriculum_share(env_name: str = "medium_maze", repeats: int = 20) -> str:
+    """The curriculum step (Eq. 7 cost matrix + auction + goal noise) against an iteration.
+
+    One seed of the `quick` preset (K = 20 slots, P = 100 pool episodes, like the paper):
+    `curriculum.propose` jitted alone on a full pool of random states inside the goal
+    bounds (so the matching has real work), median of `repeats` calls, over the seconds of
+    a whole quick-preset iteration (the smallest iteration of any preset here).
+    """
+    cfg = config.preset(env_name, "quick")
+    env = envs.make(env_name)
+    comp = trainer.make_components(cfg, env)
+    ts = trainer.init_train_state(cfg, comp, jax.random.key(0))
+    cur = cfg.curriculum
+    shape = (cur.pool_size, env.horizon + 1)
+    pool = env.sample_uniform_goals(jax.random.key(1), shape[0] * shape[1])
+    pool = pool.reshape(shape + (env.goal_dim,))
+    start = jnp.asarray(env.start_goal)
+
+    @jax.jit
+    def propose(key):
+        return curriculum.propose(
+            cur, env, comp.classifier_net, ts.classifier.params, pool,
+            jnp.asarray(cur.pool_size), start, key, eps=cfg.classifier.eps,
+        )  # fmt: skip
+
+    jax.block_until_ready(propose(jax.random.key(2)))
+    times = []
+    for i in range(repeats):
+        begin = time.perf_counter()
+        jax.block_until_ready(propose(jax.random.key(3 + i)))
+        times.append(time.perf_counter() - begin)
+    propose_s = float(np.median(times))
+    iteration_s, _ = iteration_seconds(cfg)
+    return (
+        f"Curriculum step (Eq. 7 cost matrix for K = {cur.n_slots}, P = {cur.pool_size}, "
+        f"then the auction) on `{env_name}`: **{1e3 * propose_s:.1f} ms**, "
+        f"{100 * propose_s / iteration_s:.2f}% of a `quick` iteration ({iteration_s:.2f} s; "
+        "target: at most 2%)."
+    )
+
+
 # --- memory (child process) ----------------------------------------------------------------
 def peak_rss_gib() -> float:
     """This process's peak resident memory (VmHWM; unlike ru_maxrss, reset by exec, so a
@@ -175,7 +217,7 @@ def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument(
         "--parts", nargs="+", default=["throughput", "seeds", "memory"],
-        choices=["throughput", "seeds", "memory"],
+        choices=["throughput", "seeds", "memory", "curriculum"],
     )  # fmt: skip
     parser.add_argument("--memory-child", metavar="ENV", help=argparse.SUPPRESS)
     args = parser.parse_args(argv)
@@ -188,6 +230,7 @@ def main(argv=None) -> int:
         ),
         "seeds": seed_scaling,
         "memory": memory_table,
+        "curriculum": curriculum_share,
     }
     for part in args.parts:
         print(f"{part}:\n{parts[part]()}", flush=True)
