@@ -144,6 +144,51 @@ def jax_update_rate(
     return n_blocks * block / best, xla_flops
 
 
+def jax_update_parts(size: str = "paper", repeats: int = 15) -> list[tuple[str, float, float]]:
+    """(part, best seconds, FLOPs) of the update's pieces, each jitted alone (identical
+    schedule): the critic step, the actor (+ alpha) step, one actor forward, one twin-critic
+    forward. Says where the time of `jax_update_rate` goes."""
+    env = envs.make("medium_maze")
+    cfg = sac_config(size, 1)
+    hidden, batch = SIZES[size]
+    nets = networks.make_networks(cfg, env)
+    state = sac.init_sac(cfg, nets, env, jax.random.key(0))
+    b = jax.tree.map(lambda x: x[0], random_batch(env, batch, 1))
+    feats, next_feats = sac._features(env, b)
+    key = jax.random.key(1)
+    actor = [FEATURES, *hidden, 2 * ACTIONS]
+    critic = [FEATURES + ACTIONS, *hidden, 1]
+    flops_actor, flops_critic = 2 * batch * mlp_macs(actor), 2 * batch * mlp_macs(critic)
+    total, critic_only = update_flops(hidden, batch, 1), update_flops(hidden, batch, 10**9)
+    parts = {
+        "critic step": (
+            lambda s: sac._critic_step(cfg, nets, s, feats, next_feats, b, key)[0],
+            state,
+            critic_only,
+        ),
+        "actor + alpha step": (
+            lambda s: sac._actor_step(cfg, nets, s, feats, env.action_dim, key),
+            state,
+            total - critic_only,
+        ),
+        "actor forward": (lambda p: nets.actor.apply(p, feats), state.actor_params, flops_actor),
+        "twin-critic forward": (
+            lambda p: nets.critic.apply(p, feats, b.action),
+            state.critic_params,
+            2 * flops_critic,
+        ),
+    }
+    out = []
+    for name, (fn, arg, flops) in parts.items():
+        compiled = jax.jit(fn).lower(arg).compile()
+        jax.block_until_ready(compiled(arg))
+        best = min(
+            _timed(lambda c=compiled, a=arg: jax.block_until_ready(c(a))) for _ in range(repeats)
+        )
+        out.append((name, best, flops))
+    return out
+
+
 # --- PyTorch -------------------------------------------------------------------------------
 def torch_update_rate(size: str, actor_every: int, n_updates: int) -> float:
     """Updates/s of the same SAC update written in PyTorch (CPU, all cores)."""
@@ -244,6 +289,19 @@ def run(sizes, with_torch: bool = True) -> str:
                     f"{100 * tps * flops / 1e9 / peak:.0f}% | {ups / tps:.2f}x |"
                 )
                 print(rows[-1], flush=True)
+    rows += [
+        "",
+        "Where the time goes (3x512, batch 512, each part jitted alone):",
+        "",
+        "| part | ms | GFLOP | GFLOP/s | % of roofline |",
+        "|---|---|---|---|---|",
+    ]
+    for name, seconds, flops in jax_update_parts():
+        rate = flops / seconds / 1e9
+        rows.append(
+            f"| {name} | {1e3 * seconds:.1f} | {flops / 1e9:.2f} | {rate:.0f} | "
+            f"{100 * rate / peak:.0f}% |"
+        )
     versions = f"jax {jax.__version__}"
     if with_torch:
         import torch
