@@ -31,8 +31,16 @@ from benchmarks import results
 from d2c_jax import config, her, networks, sac
 
 SIZES = {"paper": ((512, 512, 512), 512), "small": ((256, 256), 256)}
+"""Network sizes of every SAC comparison (here, benchmarks.sb3, benchmarks.trainer):
+name -> (hidden widths, batch)."""
 FEATURES, ACTIONS = 8, 2  # medium_maze: normalize_obs (6) + normalize_goal (2); action (2)
 TIMED_UPDATES = {"paper": 40, "small": 200}
+
+
+def size_label(size: str) -> str:
+    """'3x512, 512' for SIZES['paper']: hidden widths, then the batch."""
+    hidden, batch = SIZES[size]
+    return f"{len(hidden)}x{hidden[0]}, {batch}"
 
 
 # --- FLOPs -------------------------------------------------------------------------------
@@ -275,8 +283,7 @@ def run(sizes, with_torch: bool = True) -> str:
         for schedule, every in (("identical (actor every update)", 1), ("paper (every 2nd)", 2)):
             flops = update_flops(hidden, batch, every)
             ups, xla = jax_update_rate(size, every, TIMED_UPDATES[size])
-            label = f"{'x'.join(map(str, hidden))}, {batch}"
-            lead = f"| {label} | {schedule} | {flops / 1e9:.2f}; {xla / 1e9:.2f} |"
+            lead = f"| {size_label(size)} | {schedule} | {flops / 1e9:.2f}; {xla / 1e9:.2f} |"
             rows.append(
                 f"{lead} d2c_jax | {ups:,.1f} | {ups * flops / 1e9:.0f} | "
                 f"{100 * ups * flops / 1e9 / peak:.0f}% | |"

@@ -15,7 +15,8 @@ from __future__ import annotations
 import argparse
 import time
 
-SIZES = {"paper": ([512, 512, 512], 512), "small": ([256, 256], 256)}
+from benchmarks.sac_update import SIZES
+
 TIMED_STEPS = {"paper": 300, "small": 1500}
 LEARNING_STARTS = 1000
 WARMUP = 50
@@ -55,7 +56,7 @@ def sb3_env_steps_per_s(size: str, timed_steps: int | None = None) -> float:
         env,
         replay_buffer_class=HerReplayBuffer,
         replay_buffer_kwargs=dict(n_sampled_goal=4, goal_selection_strategy="future"),
-        policy_kwargs=dict(net_arch=net_arch),
+        policy_kwargs=dict(net_arch=list(net_arch)),
         batch_size=batch,
         learning_rate=1e-4,
         buffer_size=1_000_000,

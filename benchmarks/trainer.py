@@ -36,6 +36,7 @@ import jax.numpy as jnp
 import numpy as np
 
 import envs
+from benchmarks.sac_update import SIZES
 from d2c_jax import config, curriculum, sac, trainer
 
 
@@ -69,7 +70,7 @@ def iteration_seconds(cfg: config.TrainConfig, repeats: int = 2) -> tuple[float,
     """(best seconds per iteration, compile seconds) of the vmapped train step."""
     env = envs.make(cfg.env)
     comp = trainer.make_components(cfg, env)
-    ts = jax.jit(jax.vmap(lambda k: trainer.init_train_state(cfg, comp, k)))(trainer.seed_keys(cfg))
+    ts = trainer.init_seed_states(cfg, comp)
     start = time.perf_counter()
     step = trainer.make_train_step(cfg, env).lower(ts, jnp.asarray(False)).compile()
     compile_s = time.perf_counter() - start
@@ -90,16 +91,15 @@ def env_steps_per_s(cfg: config.TrainConfig) -> float:
     return cfg.num_seeds * sched.env_steps / seconds
 
 
-def throughput_rows(env_name: str = "medium_maze") -> dict[str, float]:
-    """Env steps/s of d2c_jax SAC+HER and D2C at SB3's settings, two sizes."""
+def throughput_rows(env_name: str = "medium_maze") -> dict[tuple[str, str], float]:
+    """Env steps/s of d2c_jax at SB3's settings: (size of SIZES, 'SAC+HER' | 'D2C') -> rate."""
     base = config.preset(env_name, "paper")
     out = {}
-    sizes = (("3x512, 512", (512, 512, 512), 512), ("2x256, 256", (256, 256), 256))
-    for label, hidden, batch in sizes:
+    for size, (hidden, batch) in SIZES.items():
         cfg = sb3_settings(base, hidden, batch)
-        out[f"SAC+HER {label}"] = env_steps_per_s(sac_her_only(cfg))
-        out[f"D2C {label}"] = env_steps_per_s(cfg)
-        print(label, out, flush=True)
+        out[size, "SAC+HER"] = env_steps_per_s(sac_her_only(cfg))
+        out[size, "D2C"] = env_steps_per_s(cfg)
+        print(size, out, flush=True)
     return out
 
 
@@ -178,12 +178,13 @@ def memory_child(env_name: str) -> dict:
     # One SAC block per iteration: the same buffers and per-update temporaries.
     cfg = dataclasses.replace(cfg, utd=sac.block_size(cfg.sac) / (cfg.num_envs * env.horizon))
     comp = trainer.make_components(cfg, env)
-    out = {"baseline_gib": peak_rss_gib()}
-    ts = jax.jit(jax.vmap(lambda k: trainer.init_train_state(cfg, comp, k)))(trainer.seed_keys(cfg))
+    ts = trainer.init_seed_states(cfg, comp)
     jax.block_until_ready(ts)
-    out["replay_gib"] = sum(x.nbytes for x in jax.tree.leaves(ts.replay)) / 2**30
-    out["state_gib"] = sum(x.nbytes for x in jax.tree.leaves(ts)) / 2**30
-    out["after_init_gib"] = peak_rss_gib()
+    out = {
+        "replay_gib": sum(x.nbytes for x in jax.tree.leaves(ts.replay)) / 2**30,
+        "state_gib": sum(x.nbytes for x in jax.tree.leaves(ts)) / 2**30,
+        "after_init_gib": peak_rss_gib(),
+    }
     compiled = trainer.make_train_step(cfg, env).lower(ts, jnp.asarray(True)).compile()
     out["after_compile_gib"] = peak_rss_gib()
     analysis = compiled.memory_analysis()
@@ -226,7 +227,8 @@ def main(argv=None) -> int:
         return 0
     parts = {
         "throughput": lambda: "\n".join(
-            f"{k}: {v:,.1f} env steps/s" for k, v in throughput_rows().items()
+            f"{variant} {size}: {rate:,.1f} env steps/s"
+            for (size, variant), rate in throughput_rows().items()
         ),
         "seeds": seed_scaling,
         "memory": memory_table,

@@ -376,9 +376,7 @@ def load_run(run_dir):
     cfg = config.from_dict(config.TrainConfig, json.loads(config_path.read_text()))
     env = envs.make(cfg.env)
     comp = trainer.make_components(cfg, env)
-    like = jax.jit(jax.vmap(lambda k: trainer.init_train_state(cfg, comp, k)))(
-        trainer.seed_keys(cfg)
-    )
+    like = trainer.init_seed_states(cfg, comp)
     ckpt = checkpoint.Checkpointer(run_dir / "checkpoints")
     try:
         step = ckpt.latest_step()

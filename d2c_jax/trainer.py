@@ -110,6 +110,11 @@ def init_train_state(cfg: config_lib.TrainConfig, comp: Components, key: jax.Arr
     )
 
 
+def init_seed_states(cfg: config_lib.TrainConfig, comp: Components) -> TrainState:
+    """TrainStates of seeds S..S+N-1, stacked on a leading (num_seeds,) axis (jitted)."""
+    return jax.jit(jax.vmap(lambda k: init_train_state(cfg, comp, k)))(seed_keys(cfg))
+
+
 def seed_keys(cfg: config_lib.TrainConfig) -> jax.Array:
     """(num_seeds,) keys of seeds S..S+N-1: seed s of a sweep = a single run with seed s."""
     return jnp.stack([jax.random.key(cfg.seed + i) for i in range(cfg.num_seeds)])
@@ -364,7 +369,7 @@ def train(cfg: config_lib.TrainConfig, out, resume: bool = False, quiet: bool = 
     if not quiet:
         print(_describe(cfg, sched), flush=True)
     comp = make_components(cfg, env)
-    ts = jax.jit(jax.vmap(lambda k: init_train_state(cfg, comp, k)))(seed_keys(cfg))
+    ts = init_seed_states(cfg, comp)
     ckpt = run_loop.open_checkpointer(out)
     start = 0
     if resume:
