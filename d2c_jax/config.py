@@ -75,6 +75,10 @@ class ClassifierConfig:
     """Batch size of each of the three loss terms."""
     diversity_weight: float = 1.0
     """lambda of Eq. 5 (0 = no diversification)."""
+    marginal_weight: float = 0.0
+    """mu: DivDis's marginal regulariser, weighted lambda * mu (0 = Eq. 5 alone, the default)."""
+    marginal_prior: float = 0.5
+    """Bernoulli prior each head's mean prediction on the unlabelled points is pulled to."""
     eps: float = 0.5
     """Half-width c of the noise on desired goals (Eq. 5) and curriculum goals (Table 3)."""
     update_every: int = 2000
@@ -258,6 +262,11 @@ def validate(cfg: TrainConfig) -> str | None:
         ),
         (cfg.curriculum.n_slots >= 1, "--curriculum.n-slots must be >= 1"),
         (cfg.classifier.diversity_weight >= 0, "--classifier.diversity-weight must be >= 0"),
+        (cfg.classifier.marginal_weight >= 0, "--classifier.marginal-weight must be >= 0"),
+        (
+            0 < cfg.classifier.marginal_prior < 1,
+            "--classifier.marginal-prior must be in (0, 1)",
+        ),
     )
     for ok, message in checks:
         if not ok:

@@ -86,6 +86,14 @@ def _net(low, high, n_heads=2, hidden=(16, 16)):
     )
 
 
+def test_marginal_kl_hand_computed():
+    probs = jnp.asarray([[0.4, 0.8], [0.6, 1.0]], jnp.float32)  # head means 0.5 and 0.9
+    want = 0.9 * np.log(0.9 / 0.5) + 0.1 * np.log(0.1 / 0.5)  # head 0 sits on the prior
+    assert float(clf.marginal_kl(probs, 0.5)) == pytest.approx(want, rel=1e-5)
+    want_02 = sum(m * np.log(m / 0.2) + (1 - m) * np.log((1 - m) / 0.8) for m in (0.5, 0.9))
+    assert float(clf.marginal_kl(probs, 0.2)) == pytest.approx(want_02, rel=1e-5)
+
+
 def test_classifier_normalises_inputs_with_goal_bounds():
     big, unit = _net((-18.0, -2.0), (18.0, 6.0)), _net((-1.0, -1.0), (1.0, 1.0))
     params = big.init(jax.random.key(0), jnp.zeros((1, 2)), jnp.zeros((1, 2)))
@@ -127,7 +135,7 @@ def test_reward_fn_equals_p_pseudo_and_stops_gradients():
 
 
 def test_loss_matches_hand_written_eq5():
-    cfg = ClassifierConfig(n_heads=3, hidden_sizes=(8,), diversity_weight=0.7)
+    cfg = ClassifierConfig(n_heads=3, hidden_sizes=(8,), diversity_weight=0.7, marginal_weight=0.3)
     net = clf.make_classifier(cfg, UNIT)
     # Larger weights make the heads confident, so the MI term is far from zero.
     params = jax.tree.map(lambda w: 4.0 * w, _init(cfg, net).params)
@@ -150,11 +158,14 @@ def test_loss_matches_hand_written_eq5():
         return float(np.sum(joint * np.log(joint / outer)))
 
     mi = np.mean([mi_np(pu[:, i], pu[:, j]) for i, j in [(0, 1), (0, 2), (1, 2)]])
+    mean = pu.mean(axis=0)  # DivDis marginal term: KL(Bern(mean_i) || Bern(0.5)) per head
+    kl = float(np.sum(mean * np.log(2 * mean) + (1 - mean) * np.log(2 * (1 - mean))))
     assert float(m["classifier/bce_neg"]) == pytest.approx(neg, rel=1e-4)
     assert float(m["classifier/bce_pos"]) == pytest.approx(pos, rel=1e-4)
     assert mi > 0.01
     assert float(m["classifier/mi"]) == pytest.approx(mi, rel=1e-3)
-    assert float(total) == pytest.approx(neg + pos + 0.7 * mi, rel=1e-4)
+    assert float(m["classifier/marginal_kl"]) == pytest.approx(kl, rel=1e-3)
+    assert float(total) == pytest.approx(neg + pos + 0.7 * (mi + 0.3 * kl), rel=1e-4)
     assert float(m["classifier/loss"]) == float(total)
 
 
@@ -171,6 +182,7 @@ def test_update_classifier_steps_adam():
         "classifier/bce_neg",
         "classifier/bce_pos",
         "classifier/mi",
+        "classifier/marginal_kl",
     }
 
     @jax.jit
@@ -217,19 +229,19 @@ def _disk(key, n):
     return jnp.stack([r * jnp.cos(a), r * jnp.sin(a)], axis=-1)
 
 
-def _train_synthetic(lams, uniform_dg=False, steps=300, batch=256, seed=0):
-    """Trains 2x64 classifiers, one per lambda (vmapped), on the synthetic problem.
+def _train_synthetic(lams, uniform_dg=False, steps=300, batch=256, seed=0, mus=None):
+    """Trains 2x64 classifiers, one per (lambda, mu) (vmapped), on the synthetic problem.
 
     Conditioning goals: the desired point itself, or (uniform_dg) D_G = U(bounds) as in
-    D2C's default, through `sample_batch`. Returns the module and the parameters,
-    stacked over `lams`.
+    D2C's default, through `sample_batch`. `mus`: the marginal weights (default 0: Eq. 5 alone).
+    Returns the module and the parameters, stacked over `lams`.
     """
     cfg = ClassifierConfig(n_heads=2, hidden_sizes=(64, 64), batch_size=batch, eps=0.05)
     net = clf.make_classifier(cfg, UNIT)
     cond = jnp.broadcast_to(_DESIRED, (batch, 2))
 
-    def train(lam, key):
-        lam_cfg = dataclasses.replace(cfg, diversity_weight=lam)  # traced lambda
+    def train(lam, mu, key):
+        lam_cfg = dataclasses.replace(cfg, diversity_weight=lam, marginal_weight=mu)  # traced
 
         def body(state, key):
             k_neg, k_pos, k_uni = jax.random.split(key, 3)
@@ -248,8 +260,11 @@ def _train_synthetic(lams, uniform_dg=False, steps=300, batch=256, seed=0):
         state = clf.init_classifier(cfg, net, 2, k_init)
         return jax.lax.scan(body, state, jax.random.split(k_steps, steps))[0].params
 
-    run = jax.jit(jax.vmap(train, in_axes=(0, None)))
-    return net, run(jnp.asarray(lams, jnp.float32), jax.random.key(seed))
+    run = jax.jit(jax.vmap(train, in_axes=(0, 0, None)))
+    mus = np.zeros(len(lams)) if mus is None else mus
+    return net, run(
+        jnp.asarray(lams, jnp.float32), jnp.asarray(mus, jnp.float32), jax.random.key(seed)
+    )
 
 
 def _synthetic_stats(net, params):
@@ -293,3 +308,19 @@ def test_synthetic_heads_disagree_only_off_the_data(uniform_dg):
     # lambda = 0: the heads agree nearly everywhere.
     assert plain["dis_unexplored"] < 0.05
     assert diverse["dis_unexplored"] > 5 * plain["dis_unexplored"]
+
+
+def test_marginal_term_makes_heads_split_under_uniform_dg():
+    """With D_G = U(bounds) (D2C's default) the MI term alone barely splits the heads: a
+    "near g" head is ~0 on almost every uniform (u, g) pair, so it is nearly constant there
+    and MI is ~0 whatever the other head says. DivDis's marginal term forces one head onto
+    "x is unvisited", so p_pseudo in unexplored space is ~0.5 (SPEC §3) instead of ~0."""
+    net, params = _train_synthetic(lams=(1.0, 1.0), mus=(1.0, 0.0), uniform_dg=True)
+    with_marginal = _synthetic_stats(net, jax.tree.map(lambda x: x[0], params))
+    mi_only = _synthetic_stats(net, jax.tree.map(lambda x: x[1], params))
+    print(f"\nmu=1: {with_marginal}\nmu=0: {mi_only}")
+    for s in (with_marginal, mi_only):
+        assert s["p_inside"] < 0.05 and s["p_desired"] > 0.95
+    assert with_marginal["dis_unexplored"] > 0.3
+    assert 0.2 < with_marginal["p_unexplored"] < 0.8
+    assert with_marginal["dis_unexplored"] > 2 * mi_only["dis_unexplored"]

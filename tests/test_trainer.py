@@ -286,3 +286,24 @@ def test_ablations_run_one_iteration(override):
 def test_config_round_trips_through_config_json():
     cfg = config.preset("ant", "tiny")
     assert config.from_dict(config.TrainConfig, json.loads(run_loop.config_to_json(cfg))) == cfg
+
+
+def test_over_seeds_equals_vmap_with_and_without_a_size_one_axis():
+    import jax
+    import jax.numpy as jnp
+
+    from d2c_jax import trainer
+
+    def fn(tree, scale):
+        return {"y": tree["a"] @ tree["b"] * scale, "n": tree["a"].sum()}
+
+    rng = np.random.default_rng(0)
+    for n in (1, 3):
+        tree = {
+            "a": jnp.asarray(rng.normal(size=(n, 4, 5))),
+            "b": jnp.asarray(rng.normal(size=(n, 5))),
+        }
+        want = jax.vmap(fn, in_axes=(0, None))(tree, 2.0)
+        got = trainer.over_seeds(fn, n, in_axes=(0, None))(tree, 2.0)
+        assert jax.tree.map(jnp.shape, got) == jax.tree.map(jnp.shape, want)
+        jax.tree.map(lambda g, w: np.testing.assert_allclose(g, w, rtol=1e-6), got, want)
