@@ -5,10 +5,12 @@ f_i(x; g) = "is x a desired outcome, given the conditioning goal g". Trained wit
   - BCE(f_i(phi(s); g), 0) on states from the replay buffer,
   - BCE(f_i(g + eps; g), 1) on noisy conditioning goals,
   - lambda * mean_{i<j} MI(f_i, f_j) on uniform points of the goal bounds,
-  - lambda * mu * sum_i KL(mean f_i || prior) on the same points (DivDis's regulariser),
-where the three terms share the conditioning goals g ~ D_G. The heads agree where there
-is data and disagree elsewhere, so p_pseudo = mean_i f_i is ~0 on visited states, ~1 at
-the desired outcomes and ~0.5 in unexplored space (D2C §4.2-4.4).
+  - optionally lambda * mu * sum_i KL(mean f_i || prior) on the same points (DivDis),
+where all terms share the conditioning goals g ~ D_G. The intent (D2C §4.2-4.4): the
+heads agree where there is data and disagree elsewhere, so p_pseudo = mean_i f_i is ~0
+on visited states, ~1 at the desired outcomes and ~0.5 in unexplored space. With D_G
+uniform, Eq. 5 alone gets the first two but leaves p_pseudo ~0 in unexplored space;
+the marginal term gets the third (`marginal_kl`).
 """
 
 from __future__ import annotations
@@ -197,6 +199,8 @@ def marginal_kl(probs: jax.Array, prior: float) -> jax.Array:
     complex maze), which leaves the Eq. 7 curriculum a pure "Euclidean-nearest" rule that
     parks behind walls. Pulling each head's mean prediction towards `prior` makes one head
     take the other consistent hypothesis, "x is unvisited", so the heads disagree there.
+    Off by default (mu = 0): on complex_maze it traded the Euclidean traps for
+    mode-agnostic novelty and did not learn either (DEVIATIONS.md, RESULTS.md).
 
     Args:
       probs: (B, n_heads) head probabilities on the unlabelled points.

