@@ -242,10 +242,7 @@ def main(argv=None) -> int:
         name, *sizes = args.child
         print(json.dumps(mjx_rate(name, *map(int, sizes))))
         return 0
-    body = run(args.envs, args.batch_sizes, args.repeats)
-    print(body)
-    if args.write:
-        results.write_section("Environments", body)
+    results.report("Environments", run(args.envs, args.batch_sizes, args.repeats), args.write)
     return 0
 
 

@@ -142,10 +142,7 @@ def main(argv=None) -> int:
     parser.add_argument("--write", action="store_true", help="update benchmarks/RESULTS.md")
     parser.add_argument("--repeats", type=int, default=5)
     args = parser.parse_args(argv)
-    section = run(args.repeats)
-    print(section)
-    if args.write:
-        results.write_section("Matching", section)
+    results.report("Matching", run(args.repeats), args.write)
     return 0
 
 

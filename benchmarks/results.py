@@ -26,6 +26,13 @@ def write_section(title: str, body: str, path: pathlib.Path = RESULTS) -> None:
     path.write_text(text.rstrip("\n") + "\n")
 
 
+def report(title: str, body: str, write: bool) -> None:
+    """A benchmark module's output: prints `body`; with `write`, also its RESULTS.md section."""
+    print(body)
+    if write:
+        write_section(title, body)
+
+
 def hardware() -> str:
     """One line naming the CPU (from lscpu), the core count and the JAX devices."""
     try:

@@ -333,10 +333,7 @@ def main(argv=None) -> int:
     parser.add_argument("--no-torch", action="store_true", help="d2c_jax only")
     parser.add_argument("--write", action="store_true", help="update benchmarks/RESULTS.md")
     args = parser.parse_args(argv)
-    body = run(args.sizes, with_torch=not args.no_torch)
-    print(body)
-    if args.write:
-        results.write_section("SAC update", body)
+    results.report("SAC update", run(args.sizes, with_torch=not args.no_torch), args.write)
     return 0
 
 
