@@ -80,6 +80,8 @@ class ClassifierBatch(NamedTuple):
     positives: jax.Array  # (B, goal_dim) cond_goals + eps noise, label 1
     uniform: jax.Array  # (B, goal_dim) unlabelled points u ~ D_T, for the MI term
     cond_goals: jax.Array  # (B, goal_dim) conditioning goals g ~ D_G
+    uniform_goals: jax.Array  # (B, goal_dim) the goal each u is paired with: cond_goals, or
+    # groups of `marginal_group` consecutive rows sharing one of them (per-goal marginal)
 
 
 def make_classifier(cfg: ClassifierConfig, env: GoalEnv) -> Classifier:
@@ -190,8 +192,8 @@ def mean_pairwise_mi(probs: jax.Array) -> jax.Array:
     return jnp.mean(jnp.stack([mutual_information(probs[:, i], probs[:, j]) for i, j in pairs]))
 
 
-def marginal_kl(probs: jax.Array, prior: float) -> jax.Array:
-    """DivDis's marginal regulariser: sum_i KL(Bern(mean_b p_i) || Bern(prior)).
+def marginal_kl(probs: jax.Array, prior: float, group: int = 1) -> jax.Array:
+    """DivDis's marginal regulariser: mean_i KL(Bern(mean_b p_i) || Bern(prior)).
 
     Why: MI alone is minimised by heads that are constant on the unlabelled points. A head
     that says "x is near g" is ~0 on almost every uniform (u, g) pair, so MI never pushes
@@ -199,18 +201,23 @@ def marginal_kl(probs: jax.Array, prior: float) -> jax.Array:
     complex maze), which leaves the Eq. 7 curriculum a pure "Euclidean-nearest" rule that
     parks behind walls. Pulling each head's mean prediction towards `prior` makes one head
     take the other consistent hypothesis, "x is unvisited", so the heads disagree there.
-    Off by default (mu = 0): on complex_maze it traded the Euclidean traps for
-    mode-agnostic novelty and did not learn either (DEVIATIONS.md, RESULTS.md).
+    The mean over heads (not the sum) keeps the term's scale independent of N.
 
     Args:
       probs: (B, n_heads) head probabilities on the unlabelled points.
       prior: the Bernoulli prior in (0, 1).
+      group: consecutive rows sharing one conditioning goal; the batch mean is taken per
+        group (per goal) and the KLs averaged. 1 pools all rows.
     Returns:
-      () the summed KL in nats.
+      () the KL in nats, averaged over heads (and groups).
     """
-    mean = jnp.clip(probs.mean(axis=0), _P_CLIP, 1.0 - _P_CLIP)  # (n_heads,)
+    # group = 1 (each u with its own g) is the pooled term: one group of all B rows.
+    n_groups = 1 if group == 1 else probs.shape[0] // group
+    group = probs.shape[0] if group == 1 else group
+    grouped = probs[: n_groups * group].reshape(n_groups, group, probs.shape[-1])
+    mean = jnp.clip(grouped.mean(axis=1), _P_CLIP, 1.0 - _P_CLIP)  # (n_groups, n_heads)
     kl = mean * jnp.log(mean / prior) + (1.0 - mean) * jnp.log((1.0 - mean) / (1.0 - prior))
-    return kl.sum()
+    return kl.mean()
 
 
 def loss(
@@ -233,7 +240,7 @@ def loss(
     g = batch.cond_goals
     neg_logits = net.apply(params, batch.negatives, g)  # (B, N)
     pos_logits = net.apply(params, batch.positives, g)  # (B, N)
-    uni_logits = net.apply(params, batch.uniform, g)  # (B, N)
+    uni_logits = net.apply(params, batch.uniform, batch.uniform_goals)  # (B, N)
     # Stable logits-based BCE; sum over heads of the per-head batch means.
     bce_neg = optax.sigmoid_binary_cross_entropy(neg_logits, jnp.zeros_like(neg_logits))
     bce_pos = optax.sigmoid_binary_cross_entropy(pos_logits, jnp.ones_like(pos_logits))
@@ -242,7 +249,7 @@ def loss(
     # Diversity on unlabelled points (DivDis): the heads should be independent there.
     uni_probs = jax.nn.sigmoid(uni_logits)
     mi = mean_pairwise_mi(uni_probs)
-    marginal = marginal_kl(uni_probs, cfg.marginal_prior)
+    marginal = marginal_kl(uni_probs, cfg.marginal_prior, cfg.marginal_group)
     diversity = mi + cfg.marginal_weight * marginal
     total = bce_neg + bce_pos + cfg.diversity_weight * diversity
     metrics = {
@@ -342,4 +349,16 @@ def sample_batch(
         positives=positive_examples(cfg, env, cond, key_eps),
         uniform=env.sample_uniform_goals(key_u, n),
         cond_goals=cond,
+        uniform_goals=grouped_goals(cond, cfg.marginal_group),
     )
+
+
+def grouped_goals(cond_goals: jax.Array, group: int) -> jax.Array:
+    """Each of the first ceil(B / group) goals repeated `group` times, cut to B rows.
+
+    (B, d) -> (B, d); group = 1 returns cond_goals itself.
+    """
+    if group == 1:
+        return cond_goals
+    n = cond_goals.shape[0]
+    return jnp.repeat(cond_goals[: -(-n // group)], group, axis=0)[:n]

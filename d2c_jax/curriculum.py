@@ -52,11 +52,36 @@ def goal_slots(env: GoalEnv, n_slots: int, key: jax.Array) -> jax.Array:
     return env.clip_goal(centres + noise * (env.success_radius / 2.0) * _noise_mask(env))
 
 
-def subsample(pool_ag: jax.Array, stride: int) -> jax.Array:
-    """Every `stride`-th step plus the final one (SPEC §5): (P, T, d) -> (P, T', d)."""
+def subsample(pool_ag: jax.Array, stride: int, tail_fraction: float = 1.0) -> jax.Array:
+    """Every `stride`-th step plus the final one (SPEC §5): (P, T, d) -> (P, T', d).
+
+    With tail_fraction < 1 only the last that fraction of each trajectory (plus its final
+    state) is kept: OUTPACE scores the last 50%, where an episode has got somewhere.
+    """
     t = pool_ag.shape[1]
-    steps = sorted(set(range(0, t, stride)) | {t - 1})  # static: T is known at trace time
+    first = int(round(t * (1.0 - tail_fraction)))
+    steps = sorted(set(range(first, t, stride)) | {t - 1})  # static: T is known at trace time
     return pool_ag[:, jnp.asarray(steps)]
+
+
+def moved(pool_ag: jax.Array, min_move: float) -> jax.Array:
+    """(P,) bool: phi moved more than `min_move` from the first to the last state.
+
+    OUTPACE keeps barely-moving (warm-up) episodes out of its trajectory pool.
+    """
+    return goal_distance(pool_ag[:, 0], pool_ag[:, -1]) > min_move
+
+
+def matched_distance(goals: jax.Array, desired: jax.Array) -> jax.Array:
+    """Paper §5.1's curriculum distance: mean L2 after an optimal matching of the two sets.
+
+    goals (K, d), desired (K, d) -> (): each goal is paired with a distinct desired example
+    so that the summed distance is least (Figs. 4 and 9), so a curriculum that covers one
+    mode only stays far from the others' examples.
+    """
+    dist = goal_distance(goals[:, None, :], desired[None, :, :])  # (K, K)
+    cols = matching.auction(dist)
+    return dist[jnp.arange(goals.shape[0]), cols].mean()
 
 
 def soft_bce(log_p: jax.Array, log_q: jax.Array, y: jax.Array) -> jax.Array:
@@ -76,6 +101,7 @@ def cost_matrix(
     stride: int,
     value_fn: ValueFn | None = None,
     value_scale: float = 0.0,
+    tail_fraction: float = 1.0,
 ) -> tuple[jax.Array, jax.Array]:
     """Eq. 7 edge costs and their argmin states.
 
@@ -90,10 +116,11 @@ def cost_matrix(
       stride: subsampling stride.
       value_fn: optional V over goals, (P, T', d) -> (P, T').
       value_scale: weight of V, (1 - gamma) for the "+Value" ablation.
+      tail_fraction: score only the last this fraction of each trajectory (`subsample`).
     Returns:
       cost (K, P) and candidates (K, P, d), the argmin state of each edge.
     """
-    traj = subsample(pool_ag, stride)  # (P, T', d)
+    traj = subsample(pool_ag, stride, tail_fraction)  # (P, T', d)
     y = p_pseudo(net, params, slots, slots)  # (K,) soft target p_pseudo(g+; g+)
     value = None if value_fn is None else value_scale * value_fn(traj)  # (P, T')
     pool_index = jnp.arange(traj.shape[0])
@@ -133,6 +160,11 @@ def pool_full(pool_valid: jax.Array, pool_size: int) -> jax.Array:
     return pool_valid >= pool_size
 
 
+# Cost of a pool trajectory that may not be matched (barely moved): above any real cost,
+# so the auction takes it only when fewer usable trajectories than slots exist.
+_UNUSABLE_COST = 1e4
+
+
 def propose(
     cfg: CurriculumConfig,
     env: GoalEnv,
@@ -152,24 +184,26 @@ def propose(
     Variant "d2c": match slots to distinct pool trajectories by the auction on Eq. 7 costs;
     goal j = matched candidate + U[-c, c] * mask (c = eps), clipped. "value": the same
     with w' = w - (1 - gamma) V(s0, phi(s)). "none": the slots themselves (fresh desired
-    examples). Until all P pool entries are valid, "d2c"/"value" return the warm-up goals.
-    The matching always runs and `jnp.where` selects (no `lax.cond`): under vmap over
-    seeds a cond would run both branches anyway, and an empty pool gives a constant cost,
-    which the auction returns at once.
+    examples). Until all pool entries are valid, "d2c"/"value" return the warm-up goals.
+    Trajectories that moved at most `cfg.pool_min_move` are matched only if nothing else
+    is left. The matching always runs and `jnp.where` selects (no `lax.cond`): under vmap
+    over seeds a cond would run both branches anyway, and an empty pool gives a constant
+    cost, which the auction returns at once.
 
     Args:
       cfg: curriculum config (K = cfg.n_slots).
       env: the environment.
       net: classifier module; params: its parameters.
-      pool_ag: (P, T, d) achieved goals of the P most recent episodes.
+      pool_ag: (P, T, d) achieved goals of the pool episodes (recent, then archived).
       pool_valid: (P,) bool, or a () count of the episodes in the pool (traced).
-      start_goal: (d,) phi of the start state (warm-up centre).
+      start_goal: (d,) phi of the start state (warm-up centre), computed on the host.
       key: PRNG key.
       value_fn: V over goals (P, T', d) -> (P, T'); required by variant "value".
       gamma: SAC discount, for the (1 - gamma) scale of the "+Value" ablation.
       eps: half-width c of the goal noise (Table 3 'eps', the classifier's eps).
     Returns:
-      goals (K, d) and metrics {"curriculum/distance", "curriculum/matched_cost",
+      goals (K, d) and metrics {"curriculum/distance" (paper §5.1, `matched_distance`),
+      "curriculum/slot_distance" (each goal to its own slot), "curriculum/matched_cost",
       "curriculum/pool_full"}.
     """
     key_slots, key_noise, key_warm = jax.random.split(key, 3)
@@ -181,8 +215,11 @@ def propose(
             raise ValueError("curriculum variant 'value' needs a value_fn")
         fn = value_fn if cfg.variant == "value" else None
         cost, candidates = cost_matrix(
-            net, params, slots, pool_ag, cfg.cost_stride, fn, value_scale=1.0 - gamma
-        )
+            net, params, slots, pool_ag, cfg.cost_stride, fn,
+            value_scale=1.0 - gamma, tail_fraction=cfg.pool_tail_fraction,
+        )  # fmt: skip
+        if cfg.pool_min_move > 0:
+            cost = jnp.where(moved(pool_ag, cfg.pool_min_move)[None], cost, _UNUSABLE_COST)
         cols = matching.auction(cost, max_iters=cfg.auction_max_iters)  # (K,) distinct
         rows = jnp.arange(cfg.n_slots)
         matched = candidates[rows, cols] + _uniform_noise(env, key_noise, slots.shape, eps)
@@ -191,40 +228,67 @@ def propose(
         goals = jnp.where(full, env.clip_goal(matched), warm)
         matched_cost = jnp.where(full, cost[rows, cols].mean(), 0.0)
     metrics = {
-        # Paper Fig. 9: how far the curriculum still is from the desired outcomes.
-        "curriculum/distance": goal_distance(goals, slots).mean(),
+        # Paper §5.1, Figs. 4 and 9: how far the curriculum still is from the desired outcomes.
+        "curriculum/distance": matched_distance(goals, slots),
+        "curriculum/slot_distance": goal_distance(goals, slots).mean(),
         "curriculum/matched_cost": matched_cost,
         "curriculum/pool_full": full.astype(jnp.float32),
     }
     return goals, metrics
 
 
+def candidate_scores(
+    env: GoalEnv, net: Classifier, params: dict, achieved_goal: jax.Array, key, n: int, r: float
+) -> tuple[jax.Array, jax.Array]:
+    """n candidates phi(s_t) + U[-r, r] * mask, clipped, and their scores (SPEC §6).
+
+    The score of a candidate c is max over modes k of p_pseudo(c; g_k).
+
+    Returns:
+      candidates (n, d) and scores (n,).
+    """
+    shape = (n, achieved_goal.shape[-1])
+    cands = env.clip_goal(achieved_goal + _uniform_noise(env, key, shape, r))  # (n, d)
+    modes = jnp.asarray(env.goal_points, jnp.float32)  # (n_modes, d)
+    return cands, p_pseudo(net, params, cands[:, None, :], modes[None]).max(axis=-1)
+
+
+def relaxed_threshold(scores: jax.Array, threshold: float, relax: float) -> jax.Array:
+    """() the first of threshold, threshold - relax, ... that some score reaches (OUTPACE)."""
+    shortfall = jnp.maximum(threshold - scores.max(), 0.0)
+    return threshold - relax * jnp.ceil(shortfall / relax - 1e-6)
+
+
 def post_success_goal(
+    cfg: CurriculumConfig,
     env: GoalEnv,
     net: Classifier,
     params: dict,
     achieved_goal: jax.Array,
     key: jax.Array,
-    n_candidates: int = 16,
-    *,
-    radius_r: float,
 ) -> jax.Array:
     """The goal after the current one is reached (SPEC §6, Alg. 1 lines 8-9).
 
-    C candidates phi(s_t) + U[-r, r] * mask, clipped, scored by max over modes k of
-    p_pseudo(c; g_k); the best one wins. Vmappable over envs.
+    C = cfg.post_success_candidates candidates phi(s_t) + U[-r, r] * mask (r =
+    cfg.post_success_range), clipped, scored by `candidate_scores`. Rule "argmax": the
+    best one wins. Rule "outpace" (OUTPACE's random walk): the candidates scoring at least
+    the threshold (relaxed step by step until one does) are sampled by softmax(p / T), so
+    the walk heads for uncertain places without always taking the same one. Vmappable.
 
     Args:
+      cfg: curriculum config (the post_success_* fields).
       env: the environment; net, params: the classifier.
       achieved_goal: (d,) phi(s_t) where the goal was reached.
       key: PRNG key.
-      n_candidates: C.
-      radius_r: r, half-width of the candidate noise.
     Returns:
       (d,) the new goal.
     """
-    shape = (n_candidates, achieved_goal.shape[-1])
-    cands = env.clip_goal(achieved_goal + _uniform_noise(env, key, shape, radius_r))  # (C, d)
-    modes = jnp.asarray(env.goal_points, jnp.float32)  # (n_modes, d)
-    scores = p_pseudo(net, params, cands[:, None, :], modes[None]).max(axis=-1)  # (C,)
-    return cands[jnp.argmax(scores)]
+    cands, scores = candidate_scores(
+        env, net, params, achieved_goal, key,
+        cfg.post_success_candidates, cfg.post_success_range,
+    )  # fmt: skip
+    if cfg.post_success_rule == "argmax":
+        return cands[jnp.argmax(scores)]
+    threshold = relaxed_threshold(scores, cfg.post_success_threshold, cfg.post_success_relax)
+    logits = jnp.where(scores >= threshold - 1e-6, scores / cfg.post_success_temperature, -jnp.inf)
+    return cands[jax.random.categorical(jax.random.fold_in(key, 1), logits)]

@@ -62,6 +62,7 @@ def relabel(
     batch_size: int,
     reward_fn: RewardFn,
     key: jax.Array,
+    walk_fraction: float = 0.0,
 ) -> Batch:
     """Samples `batch_size` transitions, relabels their goals and recomputes rewards.
 
@@ -74,11 +75,12 @@ def relabel(
       batch_size: B.
       reward_fn: reward_fn(ag_next, goal) -> reward, see `RewardFn`.
       key: PRNG key.
+      walk_fraction: share of the batch from random-walk transitions (`replay.sample`).
     Returns:
       Batch with leading axis B.
     """
     key_sample, key_future, key_coin = jax.random.split(key, 3)
-    tr = replay.sample(state, batch_size, key_sample)
+    tr = replay.sample(state, batch_size, key_sample, walk_fraction)
     future = future_goals(state, tr.episode, tr.step, key_future)
     use_future = jax.random.bernoulli(key_coin, cfg.relabel_prob, (batch_size,))
     goal = jnp.where(use_future[:, None], future, tr.goal)

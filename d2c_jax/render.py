@@ -8,30 +8,47 @@ Rendering is host side: each state's qpos (and mocap_pos, for the Sawyer gripper
 target) is copied into a CPU `mujoco.MjData`, `mj_forward` computes the geometry and a
 `mujoco.Renderer` draws it. The training step never renders.
 
-OpenGL backend: MuJoCo picks it from MUJOCO_GL when `mujoco` is first imported (its
-`__init__` imports the classic renderer, whose `gl_context` module reads the variable),
-and that happens as soon as `envs` is imported. `use_gl_backend` therefore sets
-MUJOCO_GL (the user's value wins; else `egl` with a GPU, `osmesa` without) and, when
-`mujoco` was imported before with another choice, re-executes `gl_context` so that
-renderers created afterwards use the chosen backend. OSMesa needs the system library
-(Debian: `apt-get install libosmesa6`); EGL needs a GPU driver (or Mesa's EGL).
+OpenGL backend: importing this module has no side effect on it. The backend is chosen
+when a renderer is made (`make_renderer`, through which every `mujoco.Renderer` here is
+created): `use_gl_backend` sets MUJOCO_GL (the user's value wins; else `egl` with a GPU,
+`osmesa` without) and, because MuJoCo reads the variable when `mujoco` is first imported
+(its `__init__` imports the classic renderer, whose `gl_context` module reads it) and
+`envs` imports `mujoco`, re-executes `gl_context` when it was loaded with another value.
+OSMesa needs the system library (Debian: `apt-get install libosmesa6`); EGL needs a GPU
+driver (or Mesa's EGL). `gl_backend_available` checks a backend in a subprocess, so that
+a failing GL library cannot break the calling process (tests skip with its reason).
 """
 
 from __future__ import annotations
 
 import argparse
 import copy
+import functools
 import importlib
 import json
 import math
 import os
 import pathlib
+import subprocess
 import sys
 from typing import NamedTuple
 
+import jax
+import jax.numpy as jnp
+import mujoco
 import numpy as np
 
+import envs
+
 GL_BACKEND_VAR = "MUJOCO_GL"
+
+# What each backend needs, for the error a user sees when it cannot be loaded.
+GL_BACKEND_HINTS = {
+    "osmesa": "OSMesa is missing or unusable: install it (Debian/Ubuntu: apt-get install "
+    "libosmesa6), or set MUJOCO_GL=egl (a GPU driver or Mesa's libEGL)",
+    "egl": "EGL is missing or unusable: it needs a GPU driver or Mesa's libEGL; "
+    "or set MUJOCO_GL=osmesa (CPU)",
+}
 
 
 def default_gl_backend() -> str:
@@ -39,30 +56,75 @@ def default_gl_backend() -> str:
     return "egl" if any(pathlib.Path("/dev").glob("nvidia[0-9]*")) else "osmesa"
 
 
+def resolve_gl_backend(backend: str | None = None) -> str:
+    """The backend `use_gl_backend(backend)` would choose; changes nothing."""
+    return (backend or os.environ.get(GL_BACKEND_VAR) or default_gl_backend()).lower()
+
+
 def use_gl_backend(backend: str | None = None) -> str:
     """Makes MuJoCo render with `backend` (default: MUJOCO_GL if set, else the default).
 
     Sets MUJOCO_GL and, if `mujoco` was already imported with another value, reloads
     mujoco's `gl_context` so that renderers created from now on use the new backend.
-    Returns the backend in use.
+    Returns the backend in use. Called by `make_renderer`, never at import.
     """
-    chosen = (backend or os.environ.get(GL_BACKEND_VAR) or default_gl_backend()).lower()
+    chosen = resolve_gl_backend(backend)
     os.environ[GL_BACKEND_VAR] = chosen
     if "mujoco" in sys.modules:
         from mujoco.rendering.classic import gl_context
 
         if getattr(gl_context, "_MUJOCO_GL", chosen) != chosen:
-            importlib.reload(gl_context)  # the renderer reads gl_context.GLContext per call
+            try:
+                importlib.reload(gl_context)  # the renderer reads gl_context.GLContext per call
+            except Exception:
+                gl_context._MUJOCO_GL = None  # half reloaded: reload again on the next call
+                raise
     return chosen
 
 
-use_gl_backend()  # before `mujoco` is imported below, so a fresh process needs no reload
+def gl_error_message(backend: str, err: object) -> str:
+    """What is wrong (first line: the backend and what to install), then the cause."""
+    hint = GL_BACKEND_HINTS.get(backend, "set MUJOCO_GL=osmesa (CPU) or MUJOCO_GL=egl (GPU)")
+    return f"cannot create a MuJoCo OpenGL context with {GL_BACKEND_VAR}={backend}: {hint}\n{err}"
 
-import jax  # noqa: E402
-import jax.numpy as jnp  # noqa: E402
-import mujoco  # noqa: E402
 
-import envs  # noqa: E402
+# Run in a fresh interpreter by gl_backend_available: one tiny offscreen frame.
+_GL_PROBE = """\
+import mujoco
+model = mujoco.MjModel.from_xml_string("<mujoco><worldbody/></mujoco>")
+with mujoco.Renderer(model, height=8, width=8) as renderer:
+    renderer.render()
+"""
+
+
+@functools.lru_cache(maxsize=None)
+def _probe_gl_backend(backend: str) -> tuple[bool, str]:
+    env = {**os.environ, GL_BACKEND_VAR: backend}
+    try:
+        out = subprocess.run(
+            [sys.executable, "-c", _GL_PROBE],
+            capture_output=True,
+            text=True,
+            env=env,
+            timeout=120,
+        )
+    except subprocess.TimeoutExpired:
+        return False, gl_error_message(backend, "the probe timed out after 120 s")
+    if out.returncode == 0:
+        return True, f"{GL_BACKEND_VAR}={backend} renders"
+    lines = out.stderr.strip().splitlines() or [f"the probe exited with {out.returncode}"]
+    return False, gl_error_message(backend, lines[-1])  # the exception, at the end
+
+
+def gl_backend_available(backend: str | None = None) -> tuple[bool, str]:
+    """(True, ...) when MuJoCo can render offscreen with `backend` (default: the one
+    `make_renderer` would pick), else (False, what is wrong).
+
+    Renders one tiny frame in a subprocess, so a GL library that fails to load (or
+    crashes) cannot break this process; cached per backend. Sets nothing here.
+    """
+    return _probe_gl_backend(resolve_gl_backend(backend))
+
 
 # Marker colours (RGBA): the episode's goal (gold once reached), and the env's goal modes.
 GOAL_RGBA = np.array([0.1, 0.8, 0.2, 0.6], np.float32)
@@ -199,18 +261,17 @@ def _model_for(env, width: int, height: int) -> mujoco.MjModel:
 
 
 def make_renderer(model: mujoco.MjModel, width: int, height: int) -> mujoco.Renderer:
-    """A mujoco.Renderer; a RuntimeError that says what to install when GL is unavailable."""
-    backend = use_gl_backend()
+    """A mujoco.Renderer, with the GL backend chosen now (`use_gl_backend`).
+
+    Every renderer of this module is made here. Raises a RuntimeError whose first line
+    says which backend failed and what to install when no GL context can be made.
+    """
+    backend = resolve_gl_backend()
     try:
+        backend = use_gl_backend()
         return mujoco.Renderer(model, height=height, width=width)
     except Exception as err:  # ImportError, FatalError...: all mean "no usable GL context"
-        hint = {
-            "osmesa": "install OSMesa (Debian/Ubuntu: apt-get install libosmesa6)",
-            "egl": "EGL needs a GPU driver or Mesa's libEGL; or set MUJOCO_GL=osmesa",
-        }.get(backend, "set MUJOCO_GL=osmesa (CPU) or MUJOCO_GL=egl (GPU)")
-        raise RuntimeError(
-            f"cannot create a MuJoCo OpenGL context with {GL_BACKEND_VAR}={backend}: {err}; {hint}"
-        ) from err
+        raise RuntimeError(gl_error_message(backend, f"{type(err).__name__}: {err}")) from err
 
 
 def render_frames(

@@ -31,6 +31,7 @@ class ReplayState:
     achieved_goal: jax.Array  # (n_slots, H + 1, goal_dim) phi(s_t)
     action: jax.Array  # (n_slots, H, action_dim)
     goal: jax.Array  # (n_slots, H, goal_dim) the goal active when action t was taken
+    walk_start: jax.Array  # (n_slots,) int32 first random-walk step (H: the goal never reached)
     ptr: jax.Array  # () int32 next slot to write
     size: jax.Array  # () int32 slots holding an episode (<= n_slots)
     n_episodes: jax.Array  # () int32 episodes ever inserted
@@ -75,6 +76,7 @@ def init_replay(
         achieved_goal=zeros(horizon + 1, goal_dim),
         action=zeros(horizon, action_dim),
         goal=zeros(horizon, goal_dim),
+        walk_start=jnp.full((n_slots,), horizon, jnp.int32),
         ptr=jnp.zeros((), jnp.int32),
         size=jnp.zeros((), jnp.int32),
         n_episodes=jnp.zeros((), jnp.int32),
@@ -87,8 +89,9 @@ def insert_episodes(state: ReplayState, episodes) -> ReplayState:
     Args:
       state: the buffer.
       episodes: any record with fields obs (n, H + 1, obs_dim), achieved_goal
-        (n, H + 1, goal_dim), action (n, H, action_dim), goal (n, H, goal_dim)
-        (e.g. `rollout.Episodes`); other fields are ignored.
+        (n, H + 1, goal_dim), action (n, H, action_dim), goal (n, H, goal_dim), and
+        optionally walk_start (n,) int32 (`rollout.Episodes`; without it, every step
+        counts as the curriculum phase); other fields are ignored.
     Returns:
       The buffer with the n oldest slots (or the empty ones) overwritten.
     Raises:
@@ -107,10 +110,19 @@ def insert_episodes(state: ReplayState, episodes) -> ReplayState:
         achieved_goal=write(state.achieved_goal, episodes.achieved_goal),
         action=write(state.action, episodes.action),
         goal=write(state.goal, episodes.goal),
+        walk_start=write(state.walk_start, _walk_start(episodes, state.horizon)),
         ptr=(state.ptr + n) % state.n_slots,
         size=jnp.minimum(state.size + n, state.n_slots),
         n_episodes=state.n_episodes + n,
     )
+
+
+def _walk_start(episodes, horizon: int) -> jax.Array:
+    """(n,) int32 first random-walk step of each episode; H when the record has none."""
+    walk_start = getattr(episodes, "walk_start", None)
+    if walk_start is None:
+        return jnp.full((episodes.obs.shape[0],), horizon, jnp.int32)
+    return walk_start
 
 
 def _sample_slots(state: ReplayState, n: int, key: jax.Array) -> jax.Array:
@@ -122,19 +134,36 @@ def _sample_slots(state: ReplayState, n: int, key: jax.Array) -> jax.Array:
     return jax.random.randint(key, (n,), 0, jnp.maximum(state.size, 1))
 
 
-def sample(state: ReplayState, batch_size: int, key: jax.Array) -> Transition:
-    """Transitions uniform over all stored ones (all episodes have length H).
+def _sample_in_ranges(
+    state: ReplayState, lo: jax.Array, hi: jax.Array, n: int, key: jax.Array
+) -> tuple[jax.Array, jax.Array, jax.Array]:
+    """n (slot, step) pairs uniform over the steps t in [lo_e, hi_e) of the filled slots e.
+
+    Inverse-CDF sampling over the per-slot counts: every admissible step is equally likely,
+    whatever its episode.
 
     Args:
-      state: the buffer (non-empty).
-      batch_size: B.
-      key: PRNG key.
+      lo, hi: (n_slots,) int32 step ranges per slot.
     Returns:
-      Transition with leading axis B.
+      slots (n,), steps (n,) int32, and () bool: some step is admissible (else garbage).
     """
+    filled = jnp.arange(state.n_slots) < state.size
+    count = jnp.where(filled, jnp.maximum(hi - lo, 0), 0)  # (n_slots,)
+    cum = jnp.cumsum(count)
+    u = jax.random.randint(key, (n,), 0, jnp.maximum(cum[-1], 1))
+    ep = jnp.minimum(jnp.searchsorted(cum, u, side="right"), state.n_slots - 1)
+    t = lo[ep] + u - (cum[ep] - count[ep])
+    return ep.astype(jnp.int32), t.astype(jnp.int32), cum[-1] > 0
+
+
+def _uniform_steps(state: ReplayState, n: int, key: jax.Array, n_steps: int):
+    """(n,) slots uniform over the filled ones and (n,) steps uniform in [0, n_steps)."""
     key_ep, key_t = jax.random.split(key)
-    ep = _sample_slots(state, batch_size, key_ep)
-    t = jax.random.randint(key_t, (batch_size,), 0, state.horizon)
+    ep = _sample_slots(state, n, key_ep)
+    return ep, jax.random.randint(key_t, (n,), 0, n_steps)
+
+
+def _transitions(state: ReplayState, ep: jax.Array, t: jax.Array) -> Transition:
     return Transition(
         obs=state.obs[ep, t],
         action=state.action[ep, t],
@@ -146,14 +175,64 @@ def sample(state: ReplayState, batch_size: int, key: jax.Array) -> Transition:
     )
 
 
-def sample_achieved_goals(state: ReplayState, n: int, key: jax.Array) -> jax.Array:
+def _phase_steps(state: ReplayState, n: int, key: jax.Array, walk: bool):
+    """(n,) slots and steps uniform over the transitions of one phase of the episodes.
+
+    Curriculum phase: t < walk_start (the goal was the curriculum goal); random walk:
+    t >= walk_start (post-success goals). With no transition of the phase stored yet,
+    falls back to all transitions.
+    """
+    key_phase, key_any = jax.random.split(key)
+    zeros = jnp.zeros_like(state.walk_start)
+    lo, hi = (state.walk_start, zeros + state.horizon) if walk else (zeros, state.walk_start)
+    ep, t, ok = _sample_in_ranges(state, lo, hi, n, key_phase)
+    ep_any, t_any = _uniform_steps(state, n, key_any, state.horizon)
+    return jnp.where(ok, ep, ep_any), jnp.where(ok, t, t_any)
+
+
+def sample(
+    state: ReplayState, batch_size: int, key: jax.Array, walk_fraction: float = 0.0
+) -> Transition:
+    """Transitions for SAC: uniform over all stored ones, or split by phase.
+
+    With walk_fraction = 0 every transition is equally likely (all episodes have length
+    H). With walk_fraction > 0 (OUTPACE's two buffers, issue 10 rule 3), round(walk_fraction
+    * B) rows are uniform over the random-walk transitions (after the episode's goal was
+    first reached) and the rest uniform over the curriculum-phase transitions.
+
+    Args:
+      state: the buffer (non-empty).
+      batch_size: B.
+      key: PRNG key.
+      walk_fraction: static share of the batch from the random-walk phase.
+    Returns:
+      Transition with leading axis B.
+    """
+    n_walk = round(walk_fraction * batch_size)
+    if n_walk == 0:
+        return _transitions(state, *_uniform_steps(state, batch_size, key, state.horizon))
+    key_main, key_walk = jax.random.split(key)
+    ep_main, t_main = _phase_steps(state, batch_size - n_walk, key_main, walk=False)
+    ep_walk, t_walk = _phase_steps(state, n_walk, key_walk, walk=True)
+    ep = jnp.concatenate([ep_main, ep_walk])
+    return _transitions(state, ep, jnp.concatenate([t_main, t_walk]))
+
+
+def sample_achieved_goals(
+    state: ReplayState, n: int, key: jax.Array, curriculum_phase_only: bool = False
+) -> jax.Array:
     """Achieved goals phi(s) of n states uniform over stored ones: (n, goal_dim).
 
-    Every state s_0..s_H of a stored episode counts (the classifier's negatives, Eq. 5).
+    Every state s_0..s_H of a stored episode counts (the classifier's negatives, Eq. 5),
+    or, with `curriculum_phase_only`, the states s_0..s_{walk_start} the agent reached
+    while pursuing its curriculum goal (OUTPACE: places only random walks reached stay
+    "unvisited" to the classifier, so the curriculum follows them; issue 10 rule 3).
     """
-    key_ep, key_t = jax.random.split(key)
-    ep = _sample_slots(state, n, key_ep)
-    t = jax.random.randint(key_t, (n,), 0, state.horizon + 1)
+    if not curriculum_phase_only:
+        ep, t = _uniform_steps(state, n, key, state.horizon + 1)
+        return state.achieved_goal[ep, t]
+    lo = jnp.zeros_like(state.walk_start)
+    ep, t, _ = _sample_in_ranges(state, lo, state.walk_start + 1, n, key)
     return state.achieved_goal[ep, t]
 
 
@@ -174,3 +253,28 @@ def recent_episodes_achieved_goals(state: ReplayState, p: int) -> tuple[jax.Arra
     back = jnp.arange(p, dtype=jnp.int32)
     slots = (state.ptr - 1 - back) % state.n_slots
     return state.achieved_goal[slots], back < state.size
+
+
+def archived_episodes_achieved_goals(
+    state: ReplayState, a: int, key: jax.Array
+) -> tuple[jax.Array, jax.Array]:
+    """The achieved-goal trajectories of `a` distinct episodes uniform over the buffer.
+
+    The curriculum's long memory (issue 10 rule 5; HGG keeps a pool of 1000 trajectories):
+    a frontier state reached once, long ago, stays a matching candidate.
+
+    Args:
+      state: the buffer.
+      a: number of episodes (static, a <= n_slots).
+      key: PRNG key.
+    Returns:
+      achieved goals (a, H + 1, goal_dim), and valid (a,) bool (false while fewer than `a`
+      episodes are stored).
+    """
+    if a > state.n_slots:
+        raise ValueError(f"archive of {a} episodes exceeds the buffer's {state.n_slots} slots")
+    filled = jnp.arange(state.n_slots) < state.size
+    # Gumbel top-k: a uniform sample without replacement among the filled slots.
+    scores = jnp.where(filled, jax.random.gumbel(key, (state.n_slots,)), -jnp.inf)
+    _, slots = jax.lax.top_k(scores, a)
+    return state.achieved_goal[slots], filled[slots]

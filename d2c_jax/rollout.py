@@ -1,9 +1,10 @@
 """Episode collection: `num_envs` parallel episodes, vmapped over envs, scanned over time.
 
 SPEC §2 step 2: env i is conditioned on curriculum goal i mod K; when an env reaches its
-current goal it switches to a new one (SPEC §6, Alg. 1 lines 8-9) through `env.set_goal`.
-Training episodes never end early. Each transition keeps the goal that was active when
-its action was taken.
+current goal it switches to a new one (SPEC §6, Alg. 1 lines 8-9) through `env.set_goal`,
+and, once the curriculum goal was reached, optionally also every `switch_every` steps
+(OUTPACE's random walk). Training episodes never end early. Each transition keeps the
+goal that was active when its action was taken.
 """
 
 from __future__ import annotations
@@ -29,6 +30,7 @@ class Episodes(NamedTuple):
     action: jax.Array  # (n_envs, H, action_dim)
     goal: jax.Array  # (n_envs, H, goal_dim), the goal active at each step
     success: jax.Array  # (n_envs, H) bool, goal reached after the step
+    walk_start: jax.Array  # (n_envs,) int32 first step after the curriculum goal was reached
 
 
 def random_policy(action_dim: int) -> Policy:
@@ -40,26 +42,43 @@ def random_policy(action_dim: int) -> Policy:
     return policy
 
 
-def _episode(env: GoalEnv, policy: Policy, next_goal: GoalSwitch, goal, key) -> Episodes:
+def walk_start(success: jax.Array) -> jax.Array:
+    """First step of the random walk: one past the first success, H if none: (..., H) -> (...,).
+
+    Steps t < walk_start pursued the curriculum goal; later ones post-success goals.
+    """
+    horizon = success.shape[-1]
+    first = jnp.argmax(success, axis=-1)
+    return jnp.where(success.any(axis=-1), first + 1, horizon).astype(jnp.int32)
+
+
+def _episode(
+    env: GoalEnv, policy: Policy, next_goal: GoalSwitch, goal, key, switch_every: int = 0
+) -> Episodes:
     """One episode from reset, conditioned on `goal` (goal_dim,); unbatched."""
     key_reset, key_steps = jax.random.split(key)
     state = env.reset_with_goal(key_reset, goal)
 
-    def step(state: EnvState, key):
+    def step(carry, key):
+        state, walking, since = carry  # () bool past the first success, () int32 goal age
         key_act, key_goal = jax.random.split(key)
         active_goal = state.goal
         action = policy(state.obs, active_goal, key_act)
         state = env.step(state, action)
         reached = state.success
-        # SPEC §6: after success, pick a new goal for the following steps.
+        # SPEC §6: after success, pick a new goal for the following steps; OUTPACE also
+        # every `switch_every` steps of the random walk, so no goal holds the agent long.
+        due = walking & (since + 1 >= switch_every) if switch_every > 0 else False
+        switch = reached | due
         switched = env.set_goal(state, next_goal(state.achieved_goal, key_goal))
-        state = jax.tree.map(lambda new, old: jnp.where(reached, new, old), switched, state)
+        state = jax.tree.map(lambda new, old: jnp.where(switch, new, old), switched, state)
         out = (state.obs, state.achieved_goal, action, active_goal, reached)
-        return state, out
+        return (state, walking | reached, jnp.where(switch, 0, since + 1)), out
 
     first = (state.obs, state.achieved_goal)
+    carry = (state, jnp.zeros((), bool), jnp.zeros((), jnp.int32))
     _, (obs, ag, action, goals, success) = jax.lax.scan(
-        step, state, jax.random.split(key_steps, env.horizon)
+        step, carry, jax.random.split(key_steps, env.horizon)
     )
     return Episodes(
         obs=jnp.concatenate([first[0][None], obs]),
@@ -67,6 +86,7 @@ def _episode(env: GoalEnv, policy: Policy, next_goal: GoalSwitch, goal, key) -> 
         action=action,
         goal=goals,
         success=success,
+        walk_start=walk_start(success),
     )
 
 
@@ -77,6 +97,7 @@ def collect(
     curriculum_goals: jax.Array,
     num_envs: int,
     key: jax.Array,
+    switch_every: int = 0,
 ) -> Episodes:
     """Runs `num_envs` episodes in parallel; env i starts with curriculum goal i mod K.
 
@@ -87,13 +108,16 @@ def collect(
       curriculum_goals: (K, goal_dim) the curriculum goals.
       num_envs: number of parallel episodes.
       key: PRNG key.
+      switch_every: after the first success, also switch goals every this many steps
+        (0: only on success).
     Returns:
       Episodes with leading axis num_envs.
     """
     k = curriculum_goals.shape[0]
     goals = curriculum_goals[jnp.arange(num_envs) % k]
     keys = jax.random.split(key, num_envs)
-    return jax.vmap(lambda g, kk: _episode(env, policy, next_goal, g, kk))(goals, keys)
+    episode = lambda g, kk: _episode(env, policy, next_goal, g, kk, switch_every)  # noqa: E731
+    return jax.vmap(episode)(goals, keys)
 
 
 def evaluate(env: GoalEnv, policy: Policy, episodes_per_mode: int, key: jax.Array) -> jax.Array:

@@ -19,6 +19,7 @@ from typing import NamedTuple
 
 import jax
 import jax.numpy as jnp
+import numpy as np
 from flax import struct
 
 import envs
@@ -71,22 +72,42 @@ class TrainState:
     env_steps: jax.Array  # () int32 env steps done
 
 
+class HostConstants(NamedTuple):
+    """Env facts the step needs, computed once on the host (never inside the trace)."""
+
+    start_goal: np.ndarray  # (goal_dim,) phi of the start state, the warm-up centre
+    start_obs: np.ndarray  # (obs_dim,) an observation at the start, for the "+Value" V(s0, g)
+
+
+def host_constants(env: envs.GoalEnv) -> HostConstants:
+    """Reads the start state on the host: `env.start_goal` may reset the env and convert
+    the result to numpy, which a traced step cannot do (it crashed Sawyer before)."""
+    zero_goal = np.zeros(env.goal_dim, np.float32)
+    start = jax.jit(env.reset_with_goal)(jax.random.key(0), zero_goal)
+    return HostConstants(
+        start_goal=np.asarray(env.start_goal, np.float32),
+        start_obs=np.asarray(start.obs, np.float32),
+    )
+
+
 class Components(NamedTuple):
-    """The static pieces one iteration is built from (modules, not state)."""
+    """The static pieces one iteration is built from (modules and constants, not state)."""
 
     env: envs.GoalEnv
     sac_nets: networks.SACNetworks
     classifier_net: classifier.Classifier
     schedule: Schedule
+    constants: HostConstants
 
 
 def make_components(cfg: config_lib.TrainConfig, env: envs.GoalEnv) -> Components:
-    """Networks and schedule for `cfg` on `env`."""
+    """Networks, schedule and host constants for `cfg` on `env` (call it on the host)."""
     return Components(
         env=env,
         sac_nets=networks.make_networks(cfg.sac, env),
         classifier_net=classifier.make_classifier(cfg.classifier, env),
         schedule=make_schedule(cfg, env.horizon),
+        constants=host_constants(env),
     )
 
 
@@ -134,7 +155,7 @@ def _value_fn(cfg, comp: Components, ts: TrainState):
     """V(s0, g) = min_i Q_i(s0, pi(s0, g), g) for the "+Value" ablation (appendix C.2)."""
     if cfg.curriculum.variant != "value":
         return None
-    s0 = comp.env.reset_with_goal(jax.random.key(0), jnp.zeros(comp.env.goal_dim)).obs
+    s0 = jnp.asarray(comp.constants.start_obs)
 
     def value_fn(goals):
         return sac.state_value(comp.sac_nets, ts.sac, comp.env, s0, goals)
@@ -152,9 +173,10 @@ def _sac_block(cfg, comp: Components, ts: TrainState, key) -> tuple[TrainState, 
     k_batch, k_upd = jax.random.split(key)
     reward_fn = _reward_fn(cfg, comp, ts.classifier.params)
     keys = jax.random.split(k_batch, sac.block_size(cfg.sac))
-    batches = jax.vmap(lambda k: her.relabel(cfg.her, ts.replay, cfg.sac.batch_size, reward_fn, k))(
-        keys
-    )
+    walk = cfg.replay.walk_fraction
+    batches = jax.vmap(
+        lambda k: her.relabel(cfg.her, ts.replay, cfg.sac.batch_size, reward_fn, k, walk)
+    )(keys)
     new_sac, metrics = sac.update_sac_block(
         cfg.sac, comp.sac_nets, ts.sac, batches, comp.env, k_upd
     )
@@ -162,9 +184,15 @@ def _sac_block(cfg, comp: Components, ts: TrainState, key) -> tuple[TrainState, 
 
 
 def _classifier_update(cfg, comp: Components, ts: TrainState, key) -> tuple[TrainState, dict]:
-    """One Eq. 5 update: negatives are achieved goals of random buffer states."""
+    """One Eq. 5 update: negatives are achieved goals of random buffer states (of the
+    curriculum phase only, with `negatives="curriculum_phase"`)."""
     k_states, k_batch = jax.random.split(key)
-    states = replay.sample_achieved_goals(ts.replay, cfg.classifier.batch_size, k_states)
+    states = replay.sample_achieved_goals(
+        ts.replay,
+        cfg.classifier.batch_size,
+        k_states,
+        curriculum_phase_only=cfg.classifier.negatives == "curriculum_phase",
+    )
     batch = classifier.sample_batch(cfg.classifier, comp.env, states, ts.desired, k_batch)
     new_clf, metrics = classifier.update_classifier(
         cfg.classifier, comp.classifier_net, ts.classifier, batch
@@ -227,16 +255,30 @@ def _collect(cfg, comp: Components, ts: TrainState, goals, warmup, key):
 
     def next_goal(ag, k):
         return curriculum.post_success_goal(
-            env,
-            comp.classifier_net,
-            ts.classifier.params,
-            ag,
-            k,
-            cfg.curriculum.post_success_candidates,
-            radius_r=cfg.curriculum.post_success_range,
+            cfg.curriculum, env, comp.classifier_net, ts.classifier.params, ag, k
         )
 
-    return rollout.collect(env, policy, next_goal, goals, cfg.num_envs, key)
+    switch_every = cfg.curriculum.post_success_switch_every
+    return rollout.collect(env, policy, next_goal, goals, cfg.num_envs, key, switch_every)
+
+
+def _matching_pool(cfg, ts: TrainState, key) -> tuple[jax.Array, jax.Array]:
+    """The curriculum's pool: the P most recent episodes, then `archive_size` episodes
+    drawn from the whole buffer (issue 10 rule 5).
+
+    Returns:
+      achieved goals (P + A, H + 1, d) and valid (P + A,) bool.
+    """
+    recent, valid = replay.recent_episodes_achieved_goals(ts.replay, cfg.curriculum.pool_size)
+    if cfg.curriculum.archive_size == 0:
+        return recent, valid
+    archived, archived_valid = replay.archived_episodes_achieved_goals(
+        ts.replay, cfg.curriculum.archive_size, key
+    )
+    return (
+        jnp.concatenate([recent, archived]),
+        jnp.concatenate([valid, archived_valid]),
+    )
 
 
 def params_finite(ts: TrainState) -> jax.Array:
@@ -254,7 +296,7 @@ def train_iteration(cfg, comp: Components, ts: TrainState, warmup: jax.Array):
     """
     env = comp.env
     key, k_cur, k_col, k_upd = jax.random.split(ts.key, 4)
-    pool_ag, pool_valid = replay.recent_episodes_achieved_goals(ts.replay, cfg.curriculum.pool_size)
+    pool_ag, pool_valid = _matching_pool(cfg, ts, jax.random.fold_in(k_cur, 1))
     goals, cur_metrics = curriculum.propose(
         cfg.curriculum,
         env,
@@ -262,7 +304,7 @@ def train_iteration(cfg, comp: Components, ts: TrainState, warmup: jax.Array):
         ts.classifier.params,
         pool_ag,
         pool_valid,
-        jnp.asarray(env.start_goal, jnp.float32),
+        jnp.asarray(comp.constants.start_goal),
         k_cur,
         _value_fn(cfg, comp, ts),
         cfg.sac.gamma,
@@ -281,6 +323,7 @@ def train_iteration(cfg, comp: Components, ts: TrainState, warmup: jax.Array):
         **cur_metrics,
         **upd_metrics,
         "train/success_rate": episodes.success.any(axis=1).mean(),
+        "train/walk_share": 1.0 - episodes.walk_start.mean() / env.horizon,
         "train/final_distance": envs.goal_distance(
             episodes.achieved_goal[:, -1], episodes.goal[:, -1]
         ).mean(),

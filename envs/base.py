@@ -86,7 +86,8 @@ class GoalEnv(abc.ABC):
     def start_goal(self) -> np.ndarray:
         """(goal_dim,) phi of the start state: the centre of the warm-up curriculum (SPEC §5).
 
-        This default resets once (reset noise included); envs override it with the exact,
+        This default resets once (reset noise included) and converts to numpy, so call it
+        on the host, never inside a traced function; envs override it with the exact,
         noiseless value.
         """
         state = self.reset_with_goal(jax.random.key(0), np.zeros(self.goal_dim, np.float32))

@@ -180,6 +180,11 @@ class SawyerPeg(GoalEnv):
             goal = goal.at[..., 2].set(TABLE_Z)
         return goal
 
+    @property
+    def start_goal(self) -> np.ndarray:
+        """(3,) the peg's noiseless start centre."""
+        return PEG_START.copy()
+
     # --- helpers ----------------------------------------------------------------
     def hand_point(self, data: mjx.Data) -> jax.Array:
         """(3,) the hand point (between the fingertips)."""

@@ -21,3 +21,16 @@ def medium_maze():
     import envs
 
     return envs.make("medium_maze")
+
+
+@pytest.fixture
+def gl_backend():
+    """The MuJoCo GL backend a renderer would use; skips the test, saying why, when it
+    cannot render (checked once per process, in a subprocess: see render.gl_backend_available)."""
+    from d2c_jax import render
+
+    backend = render.resolve_gl_backend()
+    ok, why = render.gl_backend_available(backend)
+    if not ok:
+        pytest.skip("no usable OpenGL backend: " + why.replace("\n", " | "))
+    return backend

@@ -88,10 +88,23 @@ def _net(low, high, n_heads=2, hidden=(16, 16)):
 
 def test_marginal_kl_hand_computed():
     probs = jnp.asarray([[0.4, 0.8], [0.6, 1.0]], jnp.float32)  # head means 0.5 and 0.9
-    want = 0.9 * np.log(0.9 / 0.5) + 0.1 * np.log(0.1 / 0.5)  # head 0 sits on the prior
+    # Head 0 sits on the prior; the mean over the two heads.
+    want = (0.9 * np.log(0.9 / 0.5) + 0.1 * np.log(0.1 / 0.5)) / 2
     assert float(clf.marginal_kl(probs, 0.5)) == pytest.approx(want, rel=1e-5)
-    want_02 = sum(m * np.log(m / 0.2) + (1 - m) * np.log((1 - m) / 0.8) for m in (0.5, 0.9))
-    assert float(clf.marginal_kl(probs, 0.2)) == pytest.approx(want_02, rel=1e-5)
+    kl_02 = [m * np.log(m / 0.2) + (1 - m) * np.log((1 - m) / 0.8) for m in (0.5, 0.9)]
+    assert float(clf.marginal_kl(probs, 0.2)) == pytest.approx(np.mean(kl_02), rel=1e-5)
+
+
+def test_marginal_kl_per_goal_groups():
+    """group = 2: rows (0, 1) and (2, 3) each share a goal; the KL is taken per group."""
+    probs = jnp.asarray([[0.1], [0.3], [0.7], [0.9]], jnp.float32)  # group means 0.2, 0.8
+    pooled = float(clf.marginal_kl(probs, 0.5))  # pooled mean 0.5 sits on the prior
+    assert pooled == pytest.approx(0.0, abs=1e-6)
+    kl = 0.2 * np.log(0.2 / 0.5) + 0.8 * np.log(0.8 / 0.5)  # both groups, by symmetry
+    assert float(clf.marginal_kl(probs, 0.5, group=2)) == pytest.approx(kl, rel=1e-5)
+    goals = jnp.arange(10.0)[:, None]
+    np.testing.assert_array_equal(clf.grouped_goals(goals, 4)[:, 0], [0, 0, 0, 0, 1, 1, 1, 1, 2, 2])
+    assert clf.grouped_goals(goals, 1) is goals
 
 
 def test_classifier_normalises_inputs_with_goal_bounds():
@@ -140,7 +153,7 @@ def test_loss_matches_hand_written_eq5():
     # Larger weights make the heads confident, so the MI term is far from zero.
     params = jax.tree.map(lambda w: 4.0 * w, _init(cfg, net).params)
     rows = np.random.default_rng(1).uniform(-1.0, 1.0, (4, 6, 2)).astype(np.float32)
-    batch = clf.ClassifierBatch(*rows)
+    batch = clf.ClassifierBatch(*rows, uniform_goals=rows[3])
     total, m = jax.jit(lambda p: clf.loss(cfg, net, p, batch))(params)
 
     def bce(logits, label):  # -log sigmoid(+-z) in float64, mean over batch, sum over heads
@@ -159,7 +172,7 @@ def test_loss_matches_hand_written_eq5():
 
     mi = np.mean([mi_np(pu[:, i], pu[:, j]) for i, j in [(0, 1), (0, 2), (1, 2)]])
     mean = pu.mean(axis=0)  # DivDis marginal term: KL(Bern(mean_i) || Bern(0.5)) per head
-    kl = float(np.sum(mean * np.log(2 * mean) + (1 - mean) * np.log(2 * (1 - mean))))
+    kl = float(np.mean(mean * np.log(2 * mean) + (1 - mean) * np.log(2 * (1 - mean))))
     assert float(m["classifier/bce_neg"]) == pytest.approx(neg, rel=1e-4)
     assert float(m["classifier/bce_pos"]) == pytest.approx(pos, rel=1e-4)
     assert mi > 0.01
@@ -253,6 +266,7 @@ def _train_synthetic(lams, uniform_dg=False, steps=300, batch=256, seed=0, mus=N
                 positives=clf.positive_examples(cfg, UNIT, cond, k_pos),
                 uniform=UNIT.sample_uniform_goals(k_uni, batch),
                 cond_goals=cond,
+                uniform_goals=cond,
             )
             return clf.update_classifier(lam_cfg, net, state, b)
 

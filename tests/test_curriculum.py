@@ -160,9 +160,27 @@ def test_trajectory_ending_at_a_mode_is_matched_to_it():
     assert slots_mode[list(used).index(3)] == 1
     assert slots_mode[list(used).index(4)] == 0 and slots_mode[list(used).index(5)] == 1
     assert float(m["curriculum/pool_full"]) == 1.0
-    # curriculum/distance = mean ||goal_j - g_j+||; slots are within ~1 of their modes.
+    # curriculum/slot_distance = mean ||goal_j - g_j+||; slots are within ~1 of their modes.
     to_mode = np.linalg.norm(np.asarray(goals) - ENV.goal_points[slots_mode], axis=-1).mean()
-    assert float(m["curriculum/distance"]) == pytest.approx(to_mode, abs=1.0)
+    assert float(m["curriculum/slot_distance"]) == pytest.approx(to_mode, abs=1.0)
+    # The paper's distance matches the two sets optimally: never above the slot pairing.
+    assert float(m["curriculum/distance"]) <= float(m["curriculum/slot_distance"]) + 1e-5
+
+
+def test_matched_distance_equals_scipy_optimal_matching():
+    from scipy.optimize import linear_sum_assignment
+
+    rng = np.random.default_rng(0)
+    for _ in range(5):
+        goals, desired = rng.uniform(-18, 18, (2, 20, 2)).astype(np.float32)
+        dist = np.linalg.norm(goals[:, None] - desired[None], axis=-1)
+        rows, cols = linear_sum_assignment(dist)
+        got = float(jax.jit(cur.matched_distance)(goals, desired))
+        assert got == pytest.approx(dist[rows, cols].mean(), rel=1e-4)
+    # Hand-computed: all goals on mode 0 while half the desired examples are mode 1.
+    desired = jnp.asarray([[16.0, 16.0], [16.0, 16.0], [-16.0, -16.0], [-16.0, -16.0]])
+    goals = jnp.full((4, 2), 16.0)
+    assert float(cur.matched_distance(goals, desired)) == pytest.approx(32 * np.sqrt(2) / 2)
 
 
 def test_value_variant_trades_cost_against_value():
@@ -228,9 +246,8 @@ def test_no_curriculum_variant_uses_desired_examples():
 
 def test_post_success_goal_moves_towards_the_modes():
     net = DistanceNet(scale=100.0)  # p_pseudo decreases with the distance to the nearest mode
-    choose = jax.jit(
-        jax.vmap(lambda ag, key: cur.post_success_goal(ENV, net, NO_PARAMS, ag, key, radius_r=2.5))
-    )
+    cfg = CurriculumConfig(post_success_range=2.5)
+    choose = jax.jit(jax.vmap(lambda ag, key: cur.post_success_goal(cfg, ENV, net, NO_PARAMS, ag, key)))
     keys = jax.random.split(jax.random.key(0), 200)
     ag = jnp.broadcast_to(jnp.array([14.0, 14.0]), (200, 2))
     goals = np.asarray(choose(ag, keys))
@@ -242,9 +259,7 @@ def test_post_success_goal_moves_towards_the_modes():
     env = GoalBox([[18.0, 18.0]], [-18.0, -18.0], [18.0, 18.0])
     corner = jax.jit(
         jax.vmap(
-            lambda key: cur.post_success_goal(
-                env, net, NO_PARAMS, jnp.full(2, 17.5), key, radius_r=2.5
-            )
+            lambda key: cur.post_success_goal(cfg, env, net, NO_PARAMS, jnp.full(2, 17.5), key)
         )
     )(keys)
     assert np.all(corner <= 18.0) and np.mean(np.any(corner == 18.0, axis=-1)) > 0.5
@@ -265,5 +280,10 @@ def test_propose_on_the_medium_maze(medium_maze):
     states = np.asarray(cur.subsample(pool, cfg.cost_stride)).reshape(-1, 2)
     gap = np.abs(np.asarray(goals)[:, None] - states[None]).max(-1).min(-1)
     assert np.all(gap <= EPS + 1e-5)
-    assert set(m) == {"curriculum/distance", "curriculum/matched_cost", "curriculum/pool_full"}
+    assert set(m) == {
+        "curriculum/distance",
+        "curriculum/slot_distance",
+        "curriculum/matched_cost",
+        "curriculum/pool_full",
+    }
     assert np.isfinite(float(m["curriculum/distance"]))

@@ -3,7 +3,8 @@
 Each notebook's `parameters` cell (papermill's convention) is followed by an injected cell
 that overrides its settings, then nbclient executes it in a kernel of this interpreter.
 The kernel inherits this process's environment (tests/conftest.py: JAX on the CPU, the
-shared compilation cache). The committed notebooks carry no outputs.
+shared compilation cache). The committed notebooks carry no outputs. Notebooks that render
+take the `gl_backend` fixture (tests/conftest.py): skipped, saying why, without OpenGL.
 """
 
 import json
@@ -114,7 +115,7 @@ def test_committed_notebook_is_clean(name):
     assert not any(word in c.source for c in code for word in ("jax.grad", "optax", "flax"))
 
 
-def test_quickstart_notebook(tmp_path):
+def test_quickstart_notebook(tmp_path, gl_backend):  # renders a video
     nb = run_notebook("01_quickstart.ipynb", tmp_path)
     run = tmp_path / "run"
     assert (run / "metrics.jsonl").exists()
@@ -133,7 +134,7 @@ def test_seed_sweep_notebook(tmp_path):
     assert "±" in text
 
 
-def test_environments_notebook(tmp_path):
+def test_environments_notebook(tmp_path, gl_backend):  # renders every env
     nb = run_notebook("03_environments.ipynb", tmp_path)
     import envs
 

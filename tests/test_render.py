@@ -1,7 +1,9 @@
 """Headless rendering: frames of the right shape that show the scene, goal markers, videos.
 
-These tests need an OpenGL backend: OSMesa on CPU (`apt-get install libosmesa6`, which
-.ci/run installs) or EGL. Without one they fail with render.make_renderer's message.
+The drawing tests need an OpenGL backend: OSMesa on CPU (`apt-get install libosmesa6`,
+which .ci/run installs) or EGL. They take the `gl_backend` fixture (tests/conftest.py),
+which skips them, naming the backend and what is wrong, when none can render; importing
+`d2c_jax.render` needs no GL, so collection never fails for lack of one.
 """
 
 import os
@@ -20,12 +22,17 @@ from d2c_jax import render
 SIZE = dict(width=96, height=72)
 
 
+def _without_gl_vars() -> dict:
+    """This environment without the GL choices (PyOpenGL's follows MuJoCo's)."""
+    return {k: v for k, v in os.environ.items() if k not in ("MUJOCO_GL", "PYOPENGL_PLATFORM")}
+
+
 def maze_qpos(*xy_theta) -> np.ndarray:
     """(T, 3) maze qpos from (x, y, theta) triples."""
     return np.array(xy_theta, np.float32)
 
 
-def test_frames_have_shape_and_dtype_and_show_the_maze(medium_maze):
+def test_frames_have_shape_and_dtype_and_show_the_maze(medium_maze, gl_backend):
     frames = render.render_frames(medium_maze, maze_qpos((0, 0, 0), (0, 0, 0)), **SIZE)
     assert frames.shape == (2, 72, 96, 3)
     assert frames.dtype == np.uint8
@@ -33,7 +40,7 @@ def test_frames_have_shape_and_dtype_and_show_the_maze(medium_maze):
     np.testing.assert_array_equal(frames[0], frames[1])  # same state, same picture
 
 
-def test_frames_differ_when_the_agent_moves(medium_maze):
+def test_frames_differ_when_the_agent_moves(medium_maze, gl_backend):
     still, moved = render.render_frames(medium_maze, maze_qpos((0, 0, 0), (16, 0, 0)), **SIZE)
     changed = np.any(still != moved, axis=-1)
     # The agent left the centre and appeared on the right: both places changed, little else.
@@ -43,7 +50,7 @@ def test_frames_differ_when_the_agent_moves(medium_maze):
     assert changed.mean() < 0.05
 
 
-def test_env_state_batches_keep_their_leading_axes(medium_maze):
+def test_env_state_batches_keep_their_leading_axes(medium_maze, gl_backend):
     """EnvState (T, B): frames (T, B, height, width, 3); the goal marker is drawn."""
     reset = jax.vmap(medium_maze.reset)(jax.random.split(jax.random.key(0), 2))
     states = jax.tree.map(lambda x: jnp.stack([x, x, x]), reset)  # (T=3, B=2)
@@ -54,7 +61,7 @@ def test_env_state_batches_keep_their_leading_axes(medium_maze):
 
 
 @pytest.mark.parametrize("name", ["ant", "sawyer_push"])
-def test_physics_envs_render(name):
+def test_physics_envs_render(name, gl_backend):
     """The ant arena from above; the Sawyer table with its mocap gripper and xyz goals."""
     env = envs.make(name)
     state = env.reset_with_goal(jax.random.key(0), env.goal_points[0])
@@ -64,7 +71,7 @@ def test_physics_envs_render(name):
     assert np.any(frame != bare)
 
 
-def test_run_episodes_tile_and_gif_round_trip(medium_maze, tmp_path):
+def test_run_episodes_tile_and_gif_round_trip(medium_maze, tmp_path, gl_backend):
     policy = render.random_policy(medium_maze)
     traj = render.run_episodes(
         medium_maze, policy, medium_maze.goal_points[:3], jax.random.key(1), 4
@@ -82,21 +89,99 @@ def test_run_episodes_tile_and_gif_round_trip(medium_maze, tmp_path):
     assert np.abs(back[..., :3].astype(int) - video).mean() < 8  # GIF palette quantisation
 
 
-def test_backend_chosen_even_when_mujoco_was_imported_first(tmp_path):
+def test_backend_chosen_even_when_mujoco_was_imported_first(tmp_path, gl_backend):
     """MUJOCO_GL is read when `mujoco` is imported; render switches the backend afterwards."""
     code = (
-        "import mujoco, envs\n"  # mujoco's default (glfw: needs a display) is chosen here
+        "import os, mujoco, envs\n"  # mujoco's default (glfw: needs a display) is chosen here
         "from d2c_jax import render\n"
+        "print(os.environ.get('MUJOCO_GL'))\n"  # importing render chose nothing
         "frame = render.render_frames(envs.make('spiral_maze'), [[0.0, 0.0, 0.0]])\n"
-        "print(render.os.environ['MUJOCO_GL'], frame.shape, frame.std() > 10)\n"
+        "print(os.environ['MUJOCO_GL'], frame.shape, frame.std() > 10)\n"
     )
-    env = {k: v for k, v in os.environ.items() if k != "MUJOCO_GL"}
+    backend = render.default_gl_backend()
+    if gl_backend != backend:
+        pytest.skip(f"checks the default backend ({backend}); MUJOCO_GL={gl_backend} is set")
+    out = subprocess.run(
+        [sys.executable, "-c", code],
+        capture_output=True,
+        text=True,
+        env=_without_gl_vars(),
+        timeout=300,
+    )
+    assert out.returncode == 0, out.stderr
+    assert out.stdout.split() == ["None", backend, "(1,", "240,", "320,", "3)", "True"]
+
+
+def test_importing_the_package_sets_no_gl_backend():
+    """No side effect at import: MUJOCO_GL stays unset, no GL library is loaded."""
+    code = (
+        "import os, sys\n"
+        "import d2c_jax, d2c_jax.render, d2c_jax.trainer, envs\n"
+        "print(os.environ.get('MUJOCO_GL'))\n"
+        "print(sorted(m for m in ('OpenGL', 'mujoco.osmesa', 'mujoco.egl') if m in sys.modules))\n"
+    )
+    out = subprocess.run(
+        [sys.executable, "-c", code],
+        capture_output=True,
+        text=True,
+        env=_without_gl_vars(),
+        timeout=300,
+    )
+    assert out.returncode == 0, out.stderr
+    assert out.stdout.splitlines() == ["None", "[]"]
+
+
+def test_backend_is_chosen_when_a_renderer_is_made(gl_backend):
+    """make_renderer applies the user's MUJOCO_GL (here: the usable one) at that moment."""
+    code = (
+        "import os, mujoco\n"
+        "from d2c_jax import render\n"
+        f"os.environ['MUJOCO_GL'] = {gl_backend!r}\n"  # set after import: still honoured
+        "model = mujoco.MjModel.from_xml_string('<mujoco><worldbody/></mujoco>')\n"
+        "with render.make_renderer(model, 8, 8) as r:\n"
+        "    r.render()\n"
+        "from mujoco.rendering.classic import gl_context\n"
+        "print(os.environ['MUJOCO_GL'], gl_context._MUJOCO_GL)\n"
+    )
+    out = subprocess.run(
+        [sys.executable, "-c", code],
+        capture_output=True,
+        text=True,
+        env=_without_gl_vars(),
+        timeout=300,
+    )
+    assert out.returncode == 0, out.stderr
+    assert out.stdout.split() == [gl_backend, gl_backend]
+
+
+def test_unusable_backend_gives_a_clear_error():
+    """OSMesa that cannot load (here: PyOpenGL forced to another platform) -> RuntimeError
+    whose first line names the backend and what to install."""
+    code = (
+        "import mujoco\n"
+        "from d2c_jax import render\n"
+        "model = mujoco.MjModel.from_xml_string('<mujoco><worldbody/></mujoco>')\n"
+        "try:\n"
+        "    render.make_renderer(model, 8, 8)\n"
+        "except RuntimeError as err:\n"
+        "    print(err)\n"
+    )
+    env = {**_without_gl_vars(), "MUJOCO_GL": "osmesa", "PYOPENGL_PLATFORM": "egl"}
     out = subprocess.run(
         [sys.executable, "-c", code], capture_output=True, text=True, env=env, timeout=300
     )
     assert out.returncode == 0, out.stderr
-    backend = render.default_gl_backend()
-    assert out.stdout.split() == [backend, "(1,", "240,", "320,", "3)", "True"]
+    first = out.stdout.splitlines()[0]
+    assert "MUJOCO_GL=osmesa" in first and "apt-get install libosmesa6" in first
+
+
+def test_gl_backend_available_reports_a_broken_backend_without_failing():
+    ok, why = render.gl_backend_available("nosuchgl")
+    assert not ok
+    assert why.splitlines()[0].startswith("cannot create a MuJoCo OpenGL context")
+    assert "MUJOCO_GL=nosuchgl" in why and "invalid value" in why
+    assert render.gl_backend_available("nosuchgl") == (ok, why)  # cached
+    assert os.environ.get("MUJOCO_GL") != "nosuchgl"  # probed in a subprocess
 
 
 def test_render_cli_without_a_run_exits_2(tmp_path):
