@@ -18,6 +18,7 @@ import types
 import typing
 
 from d2c_jax import config as config_lib
+from d2c_jax import validation
 
 
 class UsageError(Exception):
@@ -132,9 +133,13 @@ def parse_args(argv: list[str]) -> tuple[config_lib.TrainConfig, pathlib.Path, b
                 raise UsageError(f"--{option} needs a value")
             value = rest.pop(0)
         cfg = apply_override(cfg, option.replace("-", "_"), value, option)
-    problem = config_lib.validate(cfg)
+    # Every field's range and the constraints between fields, whatever preset and
+    # overrides built the config: nothing invalid reaches the trainer.
+    problem = validation.validate(cfg)
     if problem:
         raise UsageError(problem)
+    if known.out is not None and not known.out.strip():
+        raise UsageError(f"--out must be a directory path, got {known.out!r}")
     out = pathlib.Path(known.out or f"runs/{cfg.env}-{cfg.preset}-{cfg.seed}")
     return cfg, out, known.resume
 

@@ -51,6 +51,8 @@ class ReplayConfig:
 
     capacity: int = 3_000_000
     """Capacity in transitions (rounded down to whole episodes)."""
+    walk_fraction: float = 0.0
+    """Share of each SAC batch from random-walk transitions (OUTPACE: 0.2; 0: uniform)."""
 
 
 @dataclasses.dataclass(frozen=True)
@@ -79,6 +81,11 @@ class ClassifierConfig:
     """mu: DivDis's marginal regulariser, weighted lambda * mu (0 = Eq. 5 alone, the default)."""
     marginal_prior: float = 0.5
     """Bernoulli prior each head's mean prediction on the unlabelled points is pulled to."""
+    marginal_group: int = 1
+    """Unlabelled points per conditioning goal in the marginal term: 1 pools it over (u, g)
+    pairs; G > 1 pairs G points with each goal and takes the term per goal (rule 6)."""
+    negatives: Literal["all", "curriculum_phase"] = "all"
+    """Negatives from every stored state, or only from the curriculum phase (OUTPACE)."""
     eps: float = 0.5
     """Half-width c of the noise on desired goals (Eq. 5) and curriculum goals (Table 3)."""
     update_every: int = 2000
@@ -107,6 +114,22 @@ class CurriculumConfig:
     """C: candidates scored when a goal is reached (SPEC §6)."""
     post_success_range: float = 2.5
     """r: half-width of the candidate noise around the reached state (SPEC §6)."""
+    post_success_rule: Literal["argmax", "outpace"] = "argmax"
+    """'argmax' of the candidates' p (SPEC §6), or OUTPACE's thresholded softmax sample."""
+    post_success_threshold: float = 0.4
+    """'outpace': candidates need p >= this, relaxed by `post_success_relax` until one does."""
+    post_success_relax: float = 0.02
+    """'outpace': step by which the threshold is relaxed."""
+    post_success_temperature: float = 0.1
+    """'outpace': the qualifying candidates are sampled by softmax(p / temperature)."""
+    post_success_switch_every: int = 0
+    """After the curriculum goal is reached, also switch goals every this many steps (0: off)."""
+    pool_tail_fraction: float = 1.0
+    """Match against the last this fraction of each pool trajectory plus its final state."""
+    pool_min_move: float = 0.0
+    """Pool episodes whose phi moved at most this from start to end are not candidates."""
+    archive_size: int = 0
+    """Pool episodes drawn uniformly from the whole buffer, beside the P most recent."""
     auction_max_iters: int = 100_000
     """Iteration cap of the auction matcher."""
 
@@ -244,34 +267,6 @@ def preset(env: str, name: str) -> TrainConfig:
     if name not in builders:
         raise ValueError(f"unknown preset {name!r}; valid presets: {', '.join(PRESET_NAMES)}")
     return builders[name](env)
-
-
-def validate(cfg: TrainConfig) -> str | None:
-    """A one-line description of the first invalid setting, or None."""
-    checks = (
-        (cfg.total_steps >= 0, f"--total-steps must be >= 0, got {cfg.total_steps}"),
-        (cfg.num_seeds >= 1, f"--seeds must be >= 1, got {cfg.num_seeds}"),
-        (cfg.num_envs >= 1, f"--num-envs must be >= 1, got {cfg.num_envs}"),
-        (cfg.utd > 0, f"--utd must be > 0, got {cfg.utd}"),
-        (cfg.eval_episodes >= 1, f"--eval-episodes must be >= 1, got {cfg.eval_episodes}"),
-        (cfg.checkpoint_every >= 1, "--checkpoint-every must be >= 1"),
-        (cfg.sac.batch_size >= 1, f"--sac.batch-size must be >= 1, got {cfg.sac.batch_size}"),
-        (
-            cfg.curriculum.pool_size >= cfg.curriculum.n_slots,
-            "--curriculum.pool-size must be >= --curriculum.n-slots (K <= P, SPEC §5)",
-        ),
-        (cfg.curriculum.n_slots >= 1, "--curriculum.n-slots must be >= 1"),
-        (cfg.classifier.diversity_weight >= 0, "--classifier.diversity-weight must be >= 0"),
-        (cfg.classifier.marginal_weight >= 0, "--classifier.marginal-weight must be >= 0"),
-        (
-            0 < cfg.classifier.marginal_prior < 1,
-            "--classifier.marginal-prior must be in (0, 1)",
-        ),
-    )
-    for ok, message in checks:
-        if not ok:
-            return message
-    return None
 
 
 def from_dict(cls, values: dict):

@@ -14,7 +14,7 @@ from typing import Callable, NamedTuple
 import jax
 import jax.numpy as jnp
 
-from envs import EnvState, GoalEnv
+from envs import GoalEnv
 
 # policy(obs (obs_dim,), goal (goal_dim,), key) -> action (action_dim,)
 Policy = Callable[[jax.Array, jax.Array, jax.Array], jax.Array]

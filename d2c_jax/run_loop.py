@@ -39,27 +39,52 @@ def config_to_json(cfg) -> str:
 
 
 def prepare_run_dir(out: pathlib.Path, cfg, resume: bool) -> None:
-    """Creates or checks the run directory and writes config.json.
+    """Creates or checks the run directory and writes config.json (before any compile).
 
     Raises:
       RunError(2): a non-empty directory without --resume, --resume with nothing to
-        resume, or --resume with a different config.
+        resume, or --resume with a different config; or a directory that cannot be
+        created, is not a directory, or cannot be written or read (the OSError's reason).
     """
+    out = pathlib.Path(out)
     config_path = out / "config.json"
+    if out.exists() and not out.is_dir():
+        raise RunError(f"--out {out}: not a directory", 2)
     if resume:
-        if not config_path.exists():
+        if not config_path.is_file():
             raise RunError(f"nothing to resume: {out} has no config.json", 2)
-        saved = json.loads(config_path.read_text())
+        with _run_dir_errors(out, "read config.json"):
+            try:
+                saved = json.loads(config_path.read_text())
+            except ValueError:
+                raise RunError(f"--out {out}: config.json is not valid JSON", 2) from None
         current = json.loads(config_to_json(cfg))
         saved.pop("total_steps", None), current.pop("total_steps", None)
         if saved != current:
             diff = sorted(k for k in current if saved.get(k) != current[k])
             raise RunError(f"--resume with a config that differs from {config_path} in {diff}", 2)
-    elif out.exists() and any(out.iterdir()):
-        raise RunError(f"run directory {out} is not empty; use --resume or another --out", 2)
-    out.mkdir(parents=True, exist_ok=True)
-    (out / "plots").mkdir(exist_ok=True)
-    config_path.write_text(config_to_json(cfg))
+    else:
+        with _run_dir_errors(out, "read the run directory"):
+            if out.exists() and any(out.iterdir()):
+                raise RunError(
+                    f"run directory {out} is not empty; use --resume or another --out", 2
+                )
+    with _run_dir_errors(out, "create the run directory"):
+        out.mkdir(parents=True, exist_ok=True)
+        (out / "plots").mkdir(exist_ok=True)
+    with _run_dir_errors(out, "write config.json"):
+        config_path.write_text(config_to_json(cfg))
+
+
+@contextlib.contextmanager
+def _run_dir_errors(out: pathlib.Path, action: str):
+    """Turns an OSError into RunError(2): '--out DIR: cannot ACTION: REASON (PATH)'."""
+    try:
+        yield
+    except OSError as err:
+        reason = err.strerror or type(err).__name__
+        where = f" ({err.filename})" if err.filename and str(err.filename) != str(out) else ""
+        raise RunError(f"--out {out}: cannot {action}: {reason}{where}", 2) from None
 
 
 # --- signals --------------------------------------------------------------------------

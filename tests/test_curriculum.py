@@ -247,7 +247,9 @@ def test_no_curriculum_variant_uses_desired_examples():
 def test_post_success_goal_moves_towards_the_modes():
     net = DistanceNet(scale=100.0)  # p_pseudo decreases with the distance to the nearest mode
     cfg = CurriculumConfig(post_success_range=2.5)
-    choose = jax.jit(jax.vmap(lambda ag, key: cur.post_success_goal(cfg, ENV, net, NO_PARAMS, ag, key)))
+    choose = jax.jit(
+        jax.vmap(lambda ag, key: cur.post_success_goal(cfg, ENV, net, NO_PARAMS, ag, key))
+    )
     keys = jax.random.split(jax.random.key(0), 200)
     ag = jnp.broadcast_to(jnp.array([14.0, 14.0]), (200, 2))
     goals = np.asarray(choose(ag, keys))

@@ -97,7 +97,7 @@ def test_two_seeds_give_per_seed_lists(tmp_path):
     "args, first_line",
     [
         (["--env", "nope"], "error: unknown env 'nope'; valid ids: complex_maze"),
-        (["--env", "medium_maze", "--total-steps", "-5"], "error: --total-steps must be >= 0"),
+        (["--env", "medium_maze", "--total-steps", "-5"], "error: --total-steps must be >= 1"),
         (["--env", "medium_maze", "--preset", "huge"], "error: unknown preset 'huge'"),
         (["--env", "medium_maze", "--sac.nope", "1"], "error: unknown option --sac.nope"),
         (["--env", "medium_maze", "--sac.batch-size", "x"], "error: --sac.batch-size must be int"),

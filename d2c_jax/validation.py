@@ -1,0 +1,288 @@
+"""Valid ranges of every config field, checked before anything compiles (issue 10 §1b).
+
+`validate(cfg)` walks every leaf field of a `TrainConfig` (through every nested section)
+and checks it against its range: the one its type implies (an int is a count >= 1, a
+float a finite scale, weight or learning rate >= 0), unless `_RANGE_EXCEPTIONS` names
+another; then the constraints between fields. A violation is one line naming the flag as
+typed, the value and the valid range; the CLI turns it into exit status 2.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import typing
+from typing import Literal
+
+from d2c_jax.config import _TABLE3, TrainConfig
+
+
+def validate(cfg: TrainConfig) -> str | None:
+    """A one-line description of the first invalid setting, or None.
+
+    Every leaf field (through every nested section) is checked against its range in
+    `field_ranges()`: the range its type implies (`_default_range`), unless
+    `_RANGE_EXCEPTIONS` names another; then the constraints between fields
+    (`cross_field_problem`). The line names the flag as typed, the value and the valid
+    range, e.g. `--sac.gamma must be in [0, 1), got 1.5`.
+    """
+    ranges = field_ranges()
+    for path, value in _leaf_values(cfg):
+        problem = field_problem(path, value, ranges)
+        if problem:
+            return problem
+    return cross_field_problem(cfg)
+
+
+# --- valid ranges (checked by `validate`) -------------------------------------------
+
+_INF = float("inf")
+_MAX_SEED = 2**32 - 1  # jax.random.key wraps above this: seed 2**32 is seed 0
+
+
+def _is_number(value, integer: bool) -> bool:
+    if isinstance(value, bool):
+        return False
+    return isinstance(value, int) if integer else isinstance(value, (int, float))
+
+
+def _num(x: float) -> str:
+    """A bound as people write it: 1 rather than 1.0."""
+    return str(int(x)) if float(x).is_integer() else str(x)
+
+
+@dataclasses.dataclass(frozen=True)
+class Interval:
+    """Finite numbers from `lo` to `hi` (None: unbounded on that side); ints if `integer`."""
+
+    lo: float | None = None
+    hi: float | None = None
+    lo_open: bool = False
+    hi_open: bool = False
+    integer: bool = False
+
+    def contains(self, value) -> bool:
+        if not _is_number(value, self.integer) or not -_INF < value < _INF:
+            return False
+        if self.lo is not None and (value <= self.lo if self.lo_open else value < self.lo):
+            return False
+        return self.hi is None or (value < self.hi if self.hi_open else value <= self.hi)
+
+    def describe(self) -> str:
+        lo, hi = self.lo, self.hi
+        if lo is not None and hi is not None:
+            left, right = "(["[not self.lo_open], ")]"[not self.hi_open]
+            return f"in {left}{_num(lo)}, {_num(hi)}{right}"
+        kind = "" if self.integer else "a finite number "
+        if lo is not None:
+            return f"{kind}{'>' if self.lo_open else '>='} {_num(lo)}"
+        if hi is not None:
+            return f"{kind}{'<' if self.hi_open else '<='} {_num(hi)}"
+        return "an integer" if self.integer else "a finite number"
+
+    def problem(self, value) -> str | None:
+        if self.contains(value):
+            return None
+        if self.integer and not _is_number(value, True):
+            return f"an integer {self.describe()}"
+        return self.describe()
+
+
+@dataclasses.dataclass(frozen=True)
+class OneOf:
+    """One of `choices` (Literal and bool fields), compared with their type."""
+
+    choices: tuple
+
+    def describe(self) -> str:
+        if self.choices == (True, False):
+            return "true or false"
+        return "one of " + ", ".join(map(str, self.choices))
+
+    def problem(self, value) -> str | None:
+        ok = any(type(value) is type(c) and value == c for c in self.choices)
+        return None if ok else self.describe()
+
+
+@dataclasses.dataclass(frozen=True)
+class Text:
+    """A non-empty string (env and preset names: the CLI checks them against their lists)."""
+
+    def describe(self) -> str:
+        return "a non-empty string"
+
+    def problem(self, value) -> str | None:
+        return None if isinstance(value, str) and value else self.describe()
+
+
+@dataclasses.dataclass(frozen=True)
+class OrNone:
+    """None, or a value `inner` accepts (`X | None` fields; typed as `none`)."""
+
+    inner: Interval | OneOf | Text
+
+    def describe(self) -> str:
+        return f"{self.inner.describe()} or none"
+
+    def problem(self, value) -> str | None:
+        return None if value is None or self.inner.problem(value) is None else self.describe()
+
+
+@dataclasses.dataclass(frozen=True)
+class NonEmptyTuple:
+    """A non-empty tuple of values `item` accepts (`tuple[X, ...]`; typed comma-separated)."""
+
+    item: Interval | OneOf | Text
+
+    def describe(self) -> str:
+        return f"a non-empty comma-separated list, each {self.item.describe()}"
+
+    def problem(self, value) -> str | None:
+        ok = isinstance(value, tuple) and value and all(self.item.problem(v) is None for v in value)
+        return None if ok else self.describe()
+
+
+Range = Interval | OneOf | Text | OrNone | NonEmptyTuple
+
+# Fields whose range is NOT the one their type implies (`_default_range`: an int is a
+# count >= 1, a float a finite scale, weight or learning rate >= 0). Keyed by dotted path;
+# `tests/test_config.py` checks that every key names a field. A new field whose default
+# range is wrong (a probability, a fraction, an int where 0 means "off") goes here.
+_RANGE_EXCEPTIONS: dict[str, Range] = {
+    # A PRNG seed: 0 is a seed; above 2**32 - 1 jax.random.key wraps around.
+    "seed": Interval(0, _MAX_SEED, integer=True),
+    # 0 = no random-action warm-up iterations.
+    "seed_steps": Interval(0, integer=True),
+    # M = round(E * utd) SAC updates per iteration: 0 would never learn.
+    "utd": Interval(0, lo_open=True),
+    # Discount: 1 makes the critic's fixed point infinite.
+    "sac.gamma": Interval(0, 1, hi_open=True),
+    # Polyak coefficient: 0 would freeze the target critic.
+    "sac.tau": Interval(0, 1, lo_open=True),
+    # log alpha = log(init_alpha).
+    "sac.init_alpha": Interval(0, lo_open=True),
+    # An entropy (any sign), or None for -action_dim.
+    "sac.target_entropy": OrNone(Interval()),
+    # Ends of the log-std squashing (any sign; min < max is a cross-field check).
+    "sac.log_std_min": Interval(),
+    "sac.log_std_max": Interval(),
+    # Probabilities and fractions.
+    "her.relabel_prob": Interval(0, 1),
+    "replay.walk_fraction": Interval(0, 1),
+    "curriculum.post_success_threshold": Interval(0, 1),
+    "curriculum.pool_tail_fraction": Interval(0, 1),
+    # A Bernoulli prior: 0 or 1 make the marginal KL infinite.
+    "classifier.marginal_prior": Interval(0, 1, lo_open=True, hi_open=True),
+    # Divisors: p / temperature and shortfall / relax.
+    "curriculum.post_success_temperature": Interval(0, lo_open=True),
+    "curriculum.post_success_relax": Interval(0, lo_open=True),
+    # Counts where 0 means "off".
+    "curriculum.post_success_switch_every": Interval(0, integer=True),
+    "curriculum.archive_size": Interval(0, integer=True),
+}
+
+# Flags whose name is not the dotted field path with dashes.
+_FLAG_NAMES = {"num_seeds": "--seeds"}
+
+
+def flag_name(path: str) -> str:
+    """The flag of the field at dotted `path`: 'sac.batch_size' -> '--sac.batch-size'."""
+    return _FLAG_NAMES.get(path) or "--" + path.replace("_", "-")
+
+
+def _default_range(hint, path: str) -> Range:
+    """The range a field's type implies.
+
+    Raises:
+      TypeError: for a type without one (give the field a `_RANGE_EXCEPTIONS` entry).
+    """
+    origin, args = typing.get_origin(hint), typing.get_args(hint)
+    if hint is bool:  # before int: bool is an int
+        return OneOf((True, False))
+    if hint is int:  # a count
+        return Interval(1, integer=True)
+    if hint is float:  # a scale, weight, noise width or learning rate
+        return Interval(0)
+    if hint is str:
+        return Text()
+    if origin is Literal:
+        return OneOf(args)
+    if origin in (typing.Union, type(int | None)) and len(args) == 2 and type(None) in args:
+        (inner,) = [a for a in args if a is not type(None)]
+        return OrNone(_default_range(inner, path))
+    if origin is tuple and len(args) == 2 and args[1] is Ellipsis:
+        return NonEmptyTuple(_default_range(args[0], path))
+    raise TypeError(
+        f"config field {path!r} has type {hint!r}, which has no default range; "
+        "add it to config._RANGE_EXCEPTIONS"
+    )
+
+
+def field_ranges(cls=TrainConfig, prefix: str = "") -> dict[str, Range]:
+    """The valid range of every leaf field of config dataclass `cls`, by dotted path."""
+    hints = typing.get_type_hints(cls)
+    ranges: dict[str, Range] = {}
+    for field in dataclasses.fields(cls):
+        path, hint = prefix + field.name, hints[field.name]
+        if isinstance(hint, type) and dataclasses.is_dataclass(hint):
+            ranges.update(field_ranges(hint, path + "."))
+        elif path in _RANGE_EXCEPTIONS:
+            ranges[path] = _RANGE_EXCEPTIONS[path]
+        else:
+            ranges[path] = _default_range(hint, path)
+    return ranges
+
+
+def _leaf_values(cfg, prefix: str = ""):
+    """(dotted path, value) of every leaf field of config dataclass instance `cfg`."""
+    for field in dataclasses.fields(cfg):
+        value = getattr(cfg, field.name)
+        if dataclasses.is_dataclass(value) and not isinstance(value, type):
+            yield from _leaf_values(value, prefix + field.name + ".")
+        else:
+            yield prefix + field.name, value
+
+
+def show_value(value) -> str:
+    """A value as the command line takes it (tuples comma-separated; strings quoted)."""
+    if isinstance(value, tuple):
+        return ",".join(map(show_value, value)) if value else "''"
+    return repr(value) if isinstance(value, str) else str(value)
+
+
+def field_problem(path: str, value, ranges: dict[str, Range] | None = None) -> str | None:
+    """The one-line message if `value` is outside the range of the field at `path`, or None."""
+    problem = (ranges or field_ranges())[path].problem(value)
+    if problem is None:
+        return None
+    return f"{flag_name(path)} must be {problem}, got {show_value(value)}"
+
+
+def cross_field_problem(cfg: TrainConfig) -> str | None:
+    """The one-line message of the first violated constraint between fields, or None."""
+    cur, sac = cfg.curriculum, cfg.sac
+    if cur.pool_size < cur.n_slots:
+        return (
+            f"--curriculum.pool-size must be >= --curriculum.n-slots ({cur.n_slots}; "
+            f"K <= P, SPEC §5), got {cur.pool_size}"
+        )
+    if not sac.log_std_min < sac.log_std_max:
+        return (
+            f"--sac.log-std-min must be < --sac.log-std-max ({sac.log_std_max}), "
+            f"got {sac.log_std_min}"
+        )
+    if cfg.seed + cfg.num_seeds - 1 > _MAX_SEED:
+        return (
+            f"--seeds must be <= {_MAX_SEED - cfg.seed + 1} with --seed {cfg.seed} "
+            f"(the last seed must be <= {_MAX_SEED}), got {cfg.num_seeds}"
+        )
+    # The buffer holds capacity // H episode slots; each iteration stores num_envs
+    # episodes and the curriculum pool reads the pool_size most recent ones.
+    horizon = _TABLE3.get(cfg.env, {}).get("H")
+    episodes = max(cfg.num_envs, cur.pool_size)
+    if horizon is not None and cfg.replay.capacity < episodes * horizon:
+        return (
+            f"--replay.capacity must be >= {episodes * horizon} (max(--num-envs, "
+            f"--curriculum.pool-size) = {episodes} episodes of {horizon} steps), "
+            f"got {cfg.replay.capacity}"
+        )
+    return None

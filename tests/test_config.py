@@ -1,0 +1,242 @@
+"""Config validation: every field's valid range is checked before anything compiles.
+
+The rule, not a list of cases: every leaf field of TrainConfig (found by walking the
+dataclasses, so fields added later are covered) has a declared range; values just outside
+it are refused with one line naming the flag, the value and the range, and values on its
+boundary pass.
+"""
+
+import dataclasses
+import math
+import os
+import pathlib
+import subprocess
+import sys
+import typing
+
+import pytest
+
+import envs
+from d2c_jax import cli, config, run_loop, validation
+
+ROOT = pathlib.Path(__file__).resolve().parents[1]
+
+
+def leaf_paths(cls, prefix: str = "") -> list[str]:
+    """Dotted paths of every leaf field of config dataclass `cls` (walked independently)."""
+    paths = []
+    for field in dataclasses.fields(cls):
+        hint = typing.get_type_hints(cls)[field.name]
+        if isinstance(hint, type) and dataclasses.is_dataclass(hint):
+            paths += leaf_paths(hint, prefix + field.name + ".")
+        else:
+            paths.append(prefix + field.name)
+    return paths
+
+
+def replace_at(cfg, path: str, value):
+    head, _, rest = path.partition(".")
+    if rest:
+        value = replace_at(getattr(cfg, head), rest, value)
+    return dataclasses.replace(cfg, **{head: value})
+
+
+def flag(path: str) -> str:
+    """The flag as the user types it."""
+    return "--seeds" if path == "num_seeds" else "--" + path.replace("_", "-")
+
+
+def shown(value) -> str:
+    """How the message shows a value: as typed on the command line."""
+    if isinstance(value, tuple):
+        return ",".join(map(str, value)) if value else "''"
+    return repr(value) if isinstance(value, str) else str(value)
+
+
+def _step(x, integer: bool, up: bool):
+    if integer:
+        return int(x) + (1 if up else -1)
+    return math.nextafter(float(x), math.inf if up else -math.inf)
+
+
+def out_of_range(rng) -> list:
+    """Values just outside `rng`, built from its declared bounds (plus nan/inf, bad types)."""
+    if isinstance(rng, validation.Interval):
+        cast = int if rng.integer else float
+        bad = []
+        if rng.lo is not None:
+            bad.append(cast(rng.lo) if rng.lo_open else _step(rng.lo, rng.integer, up=False))
+        if rng.hi is not None:
+            bad.append(cast(rng.hi) if rng.hi_open else _step(rng.hi, rng.integer, up=True))
+        if rng.integer:
+            bad += [in_range(rng)[0] + 0.5, True]  # not an integer
+        else:
+            bad += [math.nan, math.inf, -math.inf, "1"]
+        return bad
+    if isinstance(rng, validation.OneOf):
+        return ["not-a-choice", None] + ([1, 0] if rng.choices == (True, False) else [])
+    if isinstance(rng, validation.Text):
+        return ["", None]
+    if isinstance(rng, validation.OrNone):
+        return [v for v in out_of_range(rng.inner) if v is not None]
+    if isinstance(rng, validation.NonEmptyTuple):
+        good = in_range(rng.item)[0]
+        bad_items = [v for v in out_of_range(rng.item) if v is not None]
+        return [(), *((v,) for v in bad_items), *((good, v) for v in bad_items), [good]]
+    raise TypeError(f"no out-of-range values for range kind {rng!r}; teach this test")
+
+
+def in_range(rng) -> list:
+    """Values inside `rng`: its boundaries (just inside an open end), or samples."""
+    if isinstance(rng, validation.Interval):
+        cast = int if rng.integer else float
+        good = []
+        if rng.lo is not None:
+            good.append(_step(rng.lo, rng.integer, up=True) if rng.lo_open else cast(rng.lo))
+        if rng.hi is not None:
+            good.append(_step(rng.hi, rng.integer, up=False) if rng.hi_open else cast(rng.hi))
+        return good or [cast(0), cast(-1e6), cast(1e6)]
+    if isinstance(rng, validation.OneOf):
+        return list(rng.choices)
+    if isinstance(rng, validation.Text):
+        return ["x"]
+    if isinstance(rng, validation.OrNone):
+        return [None, *in_range(rng.inner)]
+    if isinstance(rng, validation.NonEmptyTuple):
+        items = in_range(rng.item)
+        return [(items[0],), tuple(items)]
+    raise TypeError(f"no in-range values for range kind {rng!r}; teach this test")
+
+
+# A valid config whose small counts leave room for each field's own boundary values
+# (K = P = num_envs = 1), so the cross-field constraints rarely interfere.
+_TINY = config.preset("medium_maze", "tiny")
+BASE = dataclasses.replace(
+    _TINY,
+    num_envs=1,
+    curriculum=dataclasses.replace(_TINY.curriculum, n_slots=1, pool_size=1),
+)
+PATHS = sorted(validation.field_ranges())  # raises TypeError (collection fails) for a new type
+
+
+@pytest.mark.parametrize("name", config.PRESET_NAMES)
+@pytest.mark.parametrize("env", envs.ENV_NAMES)
+def test_every_preset_validates(env, name):
+    assert validation.validate(config.preset(env, name)) is None
+    assert config._TABLE3[env]["H"] == envs.make(env).horizon  # used by the capacity check
+
+
+def test_every_leaf_field_has_a_range_and_exceptions_name_fields():
+    paths = leaf_paths(config.TrainConfig)
+    assert sorted(paths) == PATHS
+    assert set(validation._RANGE_EXCEPTIONS) <= set(paths), "exception for a field that is gone"
+    assert validation.validate(BASE) is None
+
+
+@pytest.mark.parametrize("path", PATHS)
+def test_out_of_range_refused_and_boundary_accepted(path):
+    rng = validation.field_ranges()[path]
+    bad_values = out_of_range(rng)
+    assert bad_values
+    for value in bad_values:
+        message = validation.validate(replace_at(BASE, path, value))
+        assert message is not None, (path, value)
+        assert "\n" not in message
+        assert message.startswith(f"{flag(path)} must be "), message
+        assert rng.describe() in message, message
+        assert message.endswith(f", got {shown(value)}"), message
+    for value in in_range(rng):
+        cfg = replace_at(BASE, path, value)
+        assert validation.field_problem(path, value) is None, (path, value)
+        problem = validation.validate(cfg)  # only a constraint between fields may remain
+        assert problem is None or problem == validation.cross_field_problem(cfg), problem
+
+
+@pytest.mark.parametrize("path", [p for p in PATHS if p not in ("env", "preset")])
+def test_cli_refuses_out_of_range_values(path):
+    """Through parse_args (preset + override): nothing out of range reaches the trainer."""
+    rng = validation.field_ranges()[path]
+    if isinstance(rng, validation.OneOf) and rng.choices == (True, False):
+        pytest.skip("bad bools are not typeable: the CLI reads 1/0 as true/false")
+    for value in out_of_range(rng):
+        if value is None or isinstance(value, (bool, list)) or value == "1":
+            continue  # the same text as a valid value (None, true, 1)
+        text = ",".join(map(repr, value)) if isinstance(value, tuple) else str(value)
+        argv = ["--env", "medium_maze", "--preset", "tiny", f"{flag(path)}={text}"]
+        with pytest.raises(cli.UsageError) as err:
+            cli.parse_args(argv)
+        assert flag(path) in str(err.value) and "\n" not in str(err.value), str(err.value)
+
+
+def test_range_descriptions():
+    assert validation.Interval(0, 1, hi_open=True).describe() == "in [0, 1)"
+    assert validation.Interval(0, 1, lo_open=True, hi_open=True).describe() == "in (0, 1)"
+    assert validation.Interval(1, integer=True).describe() == ">= 1"
+    assert validation.Interval(0, lo_open=True).describe() == "a finite number > 0"
+    assert validation.Interval().describe() == "a finite number"
+
+
+def test_cross_field_constraints():
+    bad = {
+        "--curriculum.pool-size": replace_at(BASE, "curriculum.n_slots", 2),  # K > P
+        "--sac.log-std-min": replace_at(BASE, "sac.log_std_min", BASE.sac.log_std_max),
+        "--seeds": dataclasses.replace(BASE, seed=2**32 - 1, num_seeds=2),
+        "--replay.capacity": replace_at(BASE, "replay.capacity", 99),  # < one 100-step episode
+    }
+    for name, cfg in bad.items():
+        message = validation.validate(cfg)
+        assert message is not None and message.startswith(f"{name} must be "), message
+
+
+def test_a_field_type_without_a_default_range_fails_loudly():
+    @dataclasses.dataclass(frozen=True)
+    class Odd:
+        weights: dict = dataclasses.field(default_factory=dict)
+
+    with pytest.raises(TypeError, match="weights"):
+        validation.field_ranges(Odd)
+
+
+@pytest.mark.parametrize("where", ["under_a_file", "a_file", "proc"])
+def test_unusable_run_dir_is_run_error_2(where, tmp_path):
+    afile = tmp_path / "afile"
+    afile.write_text("")
+    out = {"under_a_file": afile / "run", "a_file": afile, "proc": pathlib.Path("/proc/no/run")}
+    with pytest.raises(run_loop.RunError) as err:
+        run_loop.prepare_run_dir(out[where], BASE, resume=False)
+    assert err.value.status == 2
+    assert str(err.value).startswith(f"--out {out[where]}: ") and "\n" not in str(err.value)
+
+
+@pytest.mark.parametrize(
+    "args, field",
+    [
+        (["--total-steps", "0"], "--total-steps"),
+        (["--classifier.n-heads", "0"], "--classifier.n-heads"),
+        (["--sac.gamma", "1"], "--sac.gamma"),
+        (["--out", "{afile}/run"], "--out"),
+    ],
+)
+def test_train_py_refuses_bad_input_before_compiling(args, field, tmp_path):
+    """Exit 2, one `error:` line naming the field, no traceback, and nothing on stdout: the
+    trainer prints its run description after preparing the run directory and before it
+    builds or compiles anything, so an empty stdout means it stopped before compiling."""
+    afile = tmp_path / "afile"
+    afile.write_text("")
+    args = [a.format(afile=afile) for a in args]
+    if "--out" not in args:
+        args += ["--out", str(tmp_path / "run")]
+    result = subprocess.run(
+        [sys.executable, "train.py", "--env", "medium_maze", "--preset", "tiny", *args],
+        capture_output=True,
+        text=True,
+        cwd=ROOT,
+        timeout=120,
+        env={**os.environ, "JAX_PLATFORMS": "cpu"},
+    )
+    assert result.returncode == 2, result.stderr
+    first = result.stderr.splitlines()[0]
+    assert first.startswith(f"error: {field}"), result.stderr
+    assert "Traceback" not in result.stderr
+    assert result.stdout == ""
+    assert not (tmp_path / "run").exists()
