@@ -14,7 +14,7 @@ from typing import Callable, NamedTuple
 import jax
 import jax.numpy as jnp
 
-from envs import GoalEnv
+from envs import EnvState, GoalEnv
 
 # policy(obs (obs_dim,), goal (goal_dim,), key) -> action (action_dim,)
 Policy = Callable[[jax.Array, jax.Array, jax.Array], jax.Array]
@@ -52,42 +52,20 @@ def walk_start(success: jax.Array) -> jax.Array:
     return jnp.where(success.any(axis=-1), first + 1, horizon).astype(jnp.int32)
 
 
-def _episode(
-    env: GoalEnv, policy: Policy, next_goal: GoalSwitch, goal, key, switch_every: int = 0
-) -> Episodes:
-    """One episode from reset, conditioned on `goal` (goal_dim,); unbatched."""
-    key_reset, key_steps = jax.random.split(key)
-    state = env.reset_with_goal(key_reset, goal)
+def _switch_goals(env: GoalEnv, next_goal: GoalSwitch, states: EnvState, switch, keys):
+    """States (n_envs,) with a new goal where `switch` (n_envs,) bool; `success` recomputed.
 
-    def step(carry, key):
-        state, walking, since = carry  # () bool past the first success, () int32 goal age
-        key_act, key_goal = jax.random.split(key)
-        active_goal = state.goal
-        action = policy(state.obs, active_goal, key_act)
-        state = env.step(state, action)
-        reached = state.success
-        # SPEC §6: after success, pick a new goal for the following steps; OUTPACE also
-        # every `switch_every` steps of the random walk, so no goal holds the agent long.
-        due = walking & (since + 1 >= switch_every) if switch_every > 0 else False
-        switch = reached | due
-        switched = env.set_goal(state, next_goal(state.achieved_goal, key_goal))
-        state = jax.tree.map(lambda new, old: jnp.where(switch, new, old), switched, state)
-        out = (state.obs, state.achieved_goal, action, active_goal, reached)
-        return (state, walking | reached, jnp.where(switch, 0, since + 1)), out
-
-    first = (state.obs, state.achieved_goal)
-    carry = (state, jnp.zeros((), bool), jnp.zeros((), jnp.int32))
-    _, (obs, ag, action, goals, success) = jax.lax.scan(
-        step, carry, jax.random.split(key_steps, env.horizon)
+    New goals cost a classifier call per env, so they are computed only at steps where
+    some env switches (a real `lax.cond` for one seed; under vmap over seeds it becomes a
+    select and costs what it did before).
+    """
+    new_goals = jax.lax.cond(
+        switch.any(),
+        lambda: jax.vmap(next_goal)(states.achieved_goal, keys),
+        lambda: states.goal,
     )
-    return Episodes(
-        obs=jnp.concatenate([first[0][None], obs]),
-        achieved_goal=jnp.concatenate([first[1][None], ag]),
-        action=action,
-        goal=goals,
-        success=success,
-        walk_start=walk_start(success),
-    )
+    goals = jnp.where(switch[:, None], new_goals, states.goal)
+    return jax.vmap(env.set_goal)(states, goals)
 
 
 def collect(
@@ -100,6 +78,9 @@ def collect(
     switch_every: int = 0,
 ) -> Episodes:
     """Runs `num_envs` episodes in parallel; env i starts with curriculum goal i mod K.
+
+    A scan over the H steps of a step vmapped over envs (rather than a vmap of per-env
+    scans), so that a step where no env switches goals skips the goal choice.
 
     Args:
       env: the environment.
@@ -115,9 +96,41 @@ def collect(
     """
     k = curriculum_goals.shape[0]
     goals = curriculum_goals[jnp.arange(num_envs) % k]
-    keys = jax.random.split(key, num_envs)
-    episode = lambda g, kk: _episode(env, policy, next_goal, g, kk, switch_every)  # noqa: E731
-    return jax.vmap(episode)(goals, keys)
+    split = jax.vmap(jax.random.split)
+    key_reset, key_steps = jnp.moveaxis(split(jax.random.split(key, num_envs)), 1, 0)
+    states = jax.vmap(env.reset_with_goal)(key_reset, goals)
+    # (H, n_envs) step keys: env i's stream is the same as in a per-env episode loop.
+    step_keys = jnp.moveaxis(
+        jax.vmap(lambda kk: jax.random.split(kk, env.horizon))(key_steps), 1, 0
+    )
+
+    def step(carry, keys):
+        states, walking, since = carry  # (n,) bool past the first success, (n,) goal age
+        key_act, key_goal = jnp.moveaxis(split(keys), 1, 0)
+        active_goals = states.goal
+        actions = jax.vmap(policy)(states.obs, active_goals, key_act)
+        states = jax.vmap(env.step)(states, actions)
+        reached = states.success
+        # SPEC §6: after success, pick a new goal for the following steps; OUTPACE also
+        # every `switch_every` steps of the random walk, so no goal holds the agent long.
+        due = walking & (since + 1 >= switch_every) if switch_every > 0 else False
+        switch = reached | due
+        states = _switch_goals(env, next_goal, states, switch, key_goal)
+        out = (states.obs, states.achieved_goal, actions, active_goals, reached)
+        return (states, walking | reached, jnp.where(switch, 0, since + 1)), out
+
+    carry = (states, jnp.zeros(num_envs, bool), jnp.zeros(num_envs, jnp.int32))
+    _, (obs, ag, actions, active, success) = jax.lax.scan(step, carry, step_keys)
+    env_major = lambda x: jnp.moveaxis(x, 0, 1)  # noqa: E731  (H, n, ...) -> (n, H, ...)
+    success = env_major(success)
+    return Episodes(
+        obs=jnp.concatenate([states.obs[:, None], env_major(obs)], axis=1),
+        achieved_goal=jnp.concatenate([states.achieved_goal[:, None], env_major(ag)], axis=1),
+        action=env_major(actions),
+        goal=env_major(active),
+        success=success,
+        walk_start=walk_start(success),
+    )
 
 
 def evaluate(env: GoalEnv, policy: Policy, episodes_per_mode: int, key: jax.Array) -> jax.Array:

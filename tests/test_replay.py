@@ -134,3 +134,63 @@ def test_insert_traces_once_and_vmaps_over_seeds():
     eps = jax.tree.map(lambda x: jnp.stack([x, x + 1000]), make_episodes([0, 1]))
     both = jax.vmap(replay.insert_episodes)(seeds, eps)
     np.testing.assert_array_equal(both.obs[:, :2, 0, 0], [[0, 100], [1000, 1100]])
+
+
+class PhasedEpisodes(NamedTuple):
+    obs: jax.Array
+    achieved_goal: jax.Array
+    action: jax.Array
+    goal: jax.Array
+    walk_start: jax.Array  # (n,) int32
+
+
+def phased_buffer():
+    """4 of 6 slots filled; walk_start 1, 3 (= H: no walk), 0 (all walk), 2."""
+    state = fresh(6)
+    walk_start = jnp.asarray([1, 3, 0, 2], jnp.int32)
+    return replay.insert_episodes(state, PhasedEpisodes(*make_episodes(range(4)), walk_start))
+
+
+def test_phase_split_batches_and_uniform_within_each_phase():
+    state = phased_buffer()
+    tr = jax.jit(replay.sample, static_argnums=(1, 3))(state, 4000, jax.random.key(0), 0.25)
+    ep, t = np.asarray(tr.episode), np.asarray(tr.step)
+    walk_start = np.asarray(state.walk_start)[ep]
+    main, walk = slice(0, 3000), slice(3000, 4000)
+    assert np.all(t[main] < walk_start[main]) and np.all(t[walk] >= walk_start[walk])
+    assert np.all(ep < 4)
+    # Curriculum phase: (0,0) (1,0) (1,1) (1,2) (3,0) (3,1); random walk: (0,1) (0,2)
+    # (2,0) (2,1) (2,2) (3,2): six transitions each, each drawn ~1/6 of its share.
+    for part, n in ((main, 3000), (walk, 1000)):
+        _, counts = np.unique(ep[part] * 10 + t[part], return_counts=True)
+        assert len(counts) == 6
+        np.testing.assert_allclose(counts / n, 1 / 6, atol=0.035)
+    # The same transitions as Transition rows: obs codes 100 * episode + t.
+    np.testing.assert_array_equal(np.asarray(tr.obs)[:, 0], 100 * ep + t)
+
+
+def test_phase_sampling_falls_back_to_all_transitions_without_a_walk():
+    state = replay.insert_episodes(fresh(6), make_episodes(range(2)))  # no walk_start field
+    np.testing.assert_array_equal(state.walk_start[:2], [H, H])
+    tr = replay.sample(state, 400, jax.random.key(1), walk_fraction=0.5)
+    assert set(np.unique(np.asarray(tr.step)).tolist()) == {0, 1, 2}
+
+
+def test_negatives_from_the_curriculum_phase_only():
+    state = phased_buffer()
+    ag = np.asarray(replay.sample_achieved_goals(state, 3000, jax.random.key(2), True))[:, 0]
+    ep, t = ag // 100, ag % 100
+    # States s_0..s_{walk_start}: slot 0 t <= 1, slot 1 all 4, slot 2 s_0, slot 3 t <= 2.
+    limit = np.asarray([1, 3, 0, 2])[ep.astype(int)]
+    assert np.all(t <= limit) and len(np.unique(ag)) == 2 + 4 + 1 + 3
+
+
+def test_archive_draws_distinct_filled_episodes():
+    state = phased_buffer()
+    ag, valid = replay.archived_episodes_achieved_goals(state, 4, jax.random.key(3))
+    assert np.all(valid)
+    assert sorted((np.asarray(ag)[:, 0, 0] // 100).tolist()) == [0, 1, 2, 3]
+    ag, valid = replay.archived_episodes_achieved_goals(state, 6, jax.random.key(3))
+    assert int(np.asarray(valid).sum()) == 4  # two rows beyond the stored episodes
+    with pytest.raises(ValueError, match="archive"):
+        replay.archived_episodes_achieved_goals(state, 7, jax.random.key(3))

@@ -65,3 +65,40 @@ def test_evaluate_scores_reachable_and_unreachable_modes(medium_maze):
 
     score = jax.jit(lambda k: rollout.evaluate(env, oracle, 3, k))(jax.random.key(0))
     np.testing.assert_array_equal(score, np.ones(4))
+
+
+def test_each_env_draws_its_own_key_stream(medium_maze):
+    """Env i's actions come from keys[i] = split(key, n)[i] alone: adding envs or batching
+    them differently never changes another env's episode."""
+    env = medium_maze
+    goals = jnp.array([[100.0, 100.0]])  # unreachable: no goal switch
+    key = jax.random.key(3)
+    ep = rollout.collect(env, rollout.random_policy(2), lambda ag, k: ag, goals, 3, key)
+    env_key = jax.random.split(key, 3)[1]
+    step_keys = jax.random.split(jax.random.split(env_key)[1], env.horizon)
+    want = [rollout.random_policy(2)(None, None, jax.random.split(k)[0]) for k in step_keys[:5]]
+    np.testing.assert_array_equal(ep.action[1, :5], np.stack(want))
+
+
+def test_random_walk_switches_every_n_steps_and_marks_its_start(medium_maze):
+    env = medium_maze
+    # The curriculum goal (3, 0) is reached after ~3 steps; post-success goals are
+    # unreachable (far above, a fresh one per draw), so only the timer switches them.
+    far = lambda ag, key: ag + jnp.array([0.0, 100.0]) + jax.random.uniform(key, (2,))  # noqa: E731
+    ep = rollout.collect(
+        env, go_right, far, jnp.array([[3.0, 0.0]]), 1, jax.random.key(1), switch_every=10
+    )
+    success, goals = np.asarray(ep.success[0]), np.asarray(ep.goal[0])
+    first = int(np.argmax(success))
+    assert success.sum() == 1  # only the curriculum goal is ever reached
+    assert int(ep.walk_start[0]) == first + 1
+    changes = np.flatnonzero(np.any(goals[1:] != goals[:-1], axis=-1)) + 1
+    np.testing.assert_array_equal(changes, np.arange(first + 1, env.horizon, 10))
+    # Without the timer the first post-success goal holds to the end.
+    ep = rollout.collect(env, go_right, far, jnp.array([[3.0, 0.0]]), 1, jax.random.key(1))
+    assert len(np.unique(np.asarray(ep.goal[0]), axis=0)) == 2
+
+
+def test_walk_start_hand_computed():
+    success = jnp.array([[0, 0, 1, 0, 1], [0, 0, 0, 0, 0], [1, 0, 0, 0, 0]], bool)
+    np.testing.assert_array_equal(rollout.walk_start(success), [3, 5, 1])
