@@ -266,6 +266,9 @@ def _matching_pool(cfg, ts: TrainState, key) -> tuple[jax.Array, jax.Array]:
     """The curriculum's pool: the P most recent episodes, then `archive_size` episodes
     drawn from the whole buffer (issue 10 rule 5).
 
+    Archive rows beyond the episodes stored so far repeat the most recent episode, so the
+    pool counts as full (the warm-up ends) as soon as P episodes exist.
+
     Returns:
       achieved goals (P + A, H + 1, d) and valid (P + A,) bool.
     """
@@ -275,9 +278,10 @@ def _matching_pool(cfg, ts: TrainState, key) -> tuple[jax.Array, jax.Array]:
     archived, archived_valid = replay.archived_episodes_achieved_goals(
         ts.replay, cfg.curriculum.archive_size, key
     )
+    archived = jnp.where(archived_valid[:, None, None], archived, recent[:1])
     return (
         jnp.concatenate([recent, archived]),
-        jnp.concatenate([valid, archived_valid]),
+        jnp.concatenate([valid, jnp.broadcast_to(valid[0], archived_valid.shape)]),
     )
 
 

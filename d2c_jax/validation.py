@@ -259,7 +259,12 @@ def field_problem(path: str, value, ranges: dict[str, Range] | None = None) -> s
 
 def cross_field_problem(cfg: TrainConfig) -> str | None:
     """The one-line message of the first violated constraint between fields, or None."""
-    cur, sac = cfg.curriculum, cfg.sac
+    cur, sac, clf = cfg.curriculum, cfg.sac, cfg.classifier
+    if clf.marginal_group > clf.batch_size:
+        return (
+            f"--classifier.marginal-group must be <= --classifier.batch-size "
+            f"({clf.batch_size}; each group shares one goal of the batch), got {clf.marginal_group}"
+        )
     if cur.pool_size < cur.n_slots:
         return (
             f"--curriculum.pool-size must be >= --curriculum.n-slots ({cur.n_slots}; "

@@ -182,6 +182,7 @@ def test_cross_field_constraints():
         "--sac.log-std-min": replace_at(BASE, "sac.log_std_min", BASE.sac.log_std_max),
         "--seeds": dataclasses.replace(BASE, seed=2**32 - 1, num_seeds=2),
         "--replay.capacity": replace_at(BASE, "replay.capacity", 99),  # < one 100-step episode
+        "--classifier.marginal-group": replace_at(BASE, "classifier.marginal_group", 10**6),
     }
     for name, cfg in bad.items():
         message = validation.validate(cfg)
