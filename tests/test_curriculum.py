@@ -289,3 +289,51 @@ def test_propose_on_the_medium_maze(medium_maze):
         "curriculum/pool_full",
     }
     assert np.isfinite(float(m["curriculum/distance"]))
+
+
+def test_relaxed_threshold_hand_computed():
+    scores = jnp.asarray([0.1, 0.35, 0.2])
+    # 0.4 is not reached; 0.38, 0.36 neither; 0.34 is (by 0.35).
+    assert float(cur.relaxed_threshold(scores, 0.4, 0.02)) == pytest.approx(0.34)
+    assert float(cur.relaxed_threshold(jnp.asarray([0.5, 0.1]), 0.4, 0.02)) == pytest.approx(0.4)
+    assert float(cur.relaxed_threshold(jnp.asarray([0.36]), 0.4, 0.02)) == pytest.approx(0.36)
+
+
+class ScoreNet(nn.Module):
+    """Both heads = sigmoid(z) with z a fixed function of x alone: p(x) = sigmoid(x_0)."""
+
+    @nn.compact
+    def __call__(self, x, g):
+        z = x[..., :1] + 0.0 * g[..., :1]
+        return jnp.concatenate([z, z], axis=-1)
+
+
+def test_outpace_rule_samples_qualifying_candidates_by_softmax():
+    """With C candidates the rule keeps those with p >= the (relaxed) threshold and samples
+    them by softmax(p / T): compare the frequencies with the hand-computed distribution."""
+    cfg = CurriculumConfig(
+        post_success_rule="outpace", post_success_candidates=10, post_success_range=2.0
+    )
+    env = GoalBox([[0.0, 0.0]], [-18.0, -18.0], [18.0, 18.0])
+    keys = jax.random.split(jax.random.key(0), 4000)
+    pick = jax.jit(
+        jax.vmap(lambda k: cur.post_success_goal(cfg, env, ScoreNet(), {}, jnp.zeros(2), k))
+    )
+    goals = np.asarray(pick(keys))
+    cands, scores = jax.vmap(
+        lambda k: cur.candidate_scores(env, ScoreNet(), {}, jnp.zeros(2), k, 10, 2.0)
+    )(keys)
+    cands, scores = np.asarray(cands), np.asarray(scores)
+    chosen = np.argmin(np.abs(cands - goals[:, None]).sum(-1), axis=1)  # which candidate
+    np.testing.assert_allclose(cands[np.arange(4000), chosen], goals, atol=1e-6)
+    p = scores[np.arange(4000), chosen]
+    # Every pick qualifies: p >= 0.4, or the best of its candidates when none reaches 0.4.
+    best = scores.max(axis=1)
+    assert np.all((p >= 0.4 - 1e-6) | (best < 0.4))
+    # Expected p of the pick under softmax(p / 0.1) over the qualifying candidates.
+    threshold = 0.4 - 0.02 * np.ceil(np.maximum(0.4 - best, 0.0) / 0.02 - 1e-6)
+    weights = np.where(scores >= threshold[:, None] - 1e-6, np.exp(scores / 0.1), 0.0)
+    expected = (weights * scores).sum(1) / weights.sum(1)
+    assert p.mean() == pytest.approx(expected.mean(), abs=0.01)
+    # Not the argmax rule: the pick is below the best candidate often.
+    assert np.mean(p < best - 1e-6) > 0.3
