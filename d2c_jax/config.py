@@ -130,6 +130,9 @@ class CurriculumConfig:
     """Pool episodes whose phi moved at most this from start to end are not candidates."""
     archive_size: int = 0
     """Pool episodes drawn uniformly from the whole buffer, beside the P most recent."""
+    rematch_every: int = 2000
+    """Env steps between matchings (whole iterations; OUTPACE: every 20 episodes); the envs
+    of the iterations in between take the next slots of the held goals in turn."""
     auction_max_iters: int = 100_000
     """Iteration cap of the auction matcher."""
 

@@ -160,6 +160,14 @@ def pool_full(pool_valid: jax.Array, pool_size: int) -> jax.Array:
     return pool_valid >= pool_size
 
 
+# The metrics `propose` returns (held between matchings in the TrainState).
+METRIC_KEYS = (
+    "curriculum/distance",
+    "curriculum/slot_distance",
+    "curriculum/matched_cost",
+    "curriculum/pool_full",
+)
+
 # Cost of a pool trajectory that may not be matched (barely moved): above any real cost,
 # so the auction takes it only when fewer usable trajectories than slots exist.
 _UNUSABLE_COST = 1e4

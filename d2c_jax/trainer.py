@@ -37,6 +37,7 @@ class Schedule(NamedTuple):
     warmup_iterations: int  # ceil(seed_steps / E)
     eval_every: int  # iterations between evaluations
     total_iterations: int  # ceil(total_steps / E)
+    rematch_every: int  # iterations between curriculum matchings
 
 
 def make_schedule(cfg: config_lib.TrainConfig, horizon: int) -> Schedule:
@@ -50,6 +51,7 @@ def make_schedule(cfg: config_lib.TrainConfig, horizon: int) -> Schedule:
         warmup_iterations=math.ceil(cfg.seed_steps / e),
         eval_every=max(1, math.ceil(cfg.eval_every / e)),
         total_iterations=math.ceil(cfg.total_steps / e),
+        rematch_every=max(1, round(cfg.curriculum.rematch_every / e)),
     )
 
 
@@ -66,7 +68,8 @@ class TrainState:
     classifier: classifier.ClassifierState
     replay: replay.ReplayState
     desired: jax.Array  # (n_modes, examples_per_mode, goal_dim) desired examples, SPEC §1
-    curriculum_goals: jax.Array  # (n_slots, goal_dim) the goals of the last iteration
+    curriculum_goals: jax.Array  # (n_slots, goal_dim) the goals of the last matching
+    matching_metrics: dict  # () float32 each: "curriculum/*" metrics of the last matching
     key: jax.Array  # () PRNG key
     iteration: jax.Array  # () int32 iterations done
     env_steps: jax.Array  # () int32 env steps done
@@ -125,6 +128,7 @@ def init_train_state(cfg: config_lib.TrainConfig, comp: Components, key: jax.Arr
         ),
         desired=curriculum.desired_examples(env, cfg.curriculum.examples_per_mode, k_des),
         curriculum_goals=jnp.zeros((cfg.curriculum.n_slots, env.goal_dim), jnp.float32),
+        matching_metrics={k: jnp.zeros((), jnp.float32) for k in curriculum.METRIC_KEYS},
         key=key,
         iteration=jnp.zeros((), jnp.int32),
         env_steps=jnp.zeros((), jnp.int32),
@@ -292,6 +296,45 @@ def params_finite(ts: TrainState) -> jax.Array:
     return jnp.all(jnp.stack(floats))
 
 
+def _curriculum(cfg, comp: Components, ts: TrainState, key) -> tuple[jax.Array, dict]:
+    """Goals (K, d) of this iteration: a new matching every `schedule.rematch_every`
+    iterations, else the held goals (their `curriculum/*` metrics with them).
+
+    `lax.cond` on the iteration count: a real branch for one seed; under vmap over seeds
+    it becomes a select and matches every iteration, as before.
+    """
+
+    def match():
+        pool_ag, pool_valid = _matching_pool(cfg, ts, jax.random.fold_in(key, 1))
+        goals, metrics = curriculum.propose(
+            cfg.curriculum,
+            comp.env,
+            comp.classifier_net,
+            ts.classifier.params,
+            pool_ag,
+            pool_valid,
+            jnp.asarray(comp.constants.start_goal),
+            key,
+            _value_fn(cfg, comp, ts),
+            cfg.sac.gamma,
+            eps=cfg.classifier.eps,
+        )
+        return goals, jax.tree.map(lambda x: x.astype(jnp.float32), metrics)
+
+    if comp.schedule.rematch_every == 1:
+        return match()
+    due = ts.iteration % comp.schedule.rematch_every == 0
+    return jax.lax.cond(due, match, lambda: (ts.curriculum_goals, ts.matching_metrics))
+
+
+def _env_goals(cfg, comp: Components, ts: TrainState, goals: jax.Array) -> jax.Array:
+    """(num_envs, d) goals: env i of the r-th iteration since the matching takes slot
+    (i + r * num_envs) mod K, so held goals are used in turn rather than the first ones."""
+    rounds = ts.iteration % comp.schedule.rematch_every
+    slots = (jnp.arange(cfg.num_envs) + rounds * cfg.num_envs) % goals.shape[0]
+    return goals[slots]
+
+
 def train_iteration(cfg, comp: Components, ts: TrainState, warmup: jax.Array):
     """One D2C iteration for one seed: curriculum -> collect -> store -> updates.
 
@@ -300,24 +343,12 @@ def train_iteration(cfg, comp: Components, ts: TrainState, warmup: jax.Array):
     """
     env = comp.env
     key, k_cur, k_col, k_upd = jax.random.split(ts.key, 4)
-    pool_ag, pool_valid = _matching_pool(cfg, ts, jax.random.fold_in(k_cur, 1))
-    goals, cur_metrics = curriculum.propose(
-        cfg.curriculum,
-        env,
-        comp.classifier_net,
-        ts.classifier.params,
-        pool_ag,
-        pool_valid,
-        jnp.asarray(comp.constants.start_goal),
-        k_cur,
-        _value_fn(cfg, comp, ts),
-        cfg.sac.gamma,
-        eps=cfg.classifier.eps,
-    )
-    episodes = _collect(cfg, comp, ts, goals, warmup, k_col)
+    goals, cur_metrics = _curriculum(cfg, comp, ts, k_cur)
+    episodes = _collect(cfg, comp, ts, _env_goals(cfg, comp, ts, goals), warmup, k_col)
     ts = ts.replace(
         replay=replay.insert_episodes(ts.replay, episodes),
         curriculum_goals=goals,
+        matching_metrics=cur_metrics,
         key=key,
         iteration=ts.iteration + 1,
         env_steps=ts.env_steps + comp.schedule.env_steps,

@@ -1,5 +1,6 @@
 """The trainer end to end with the tiny preset: determinism, resume, seeds, bad input."""
 
+import dataclasses
 import json
 import os
 import pathlib
@@ -189,10 +190,43 @@ def test_schedule_matches_spec_hand_computed_counts():
         warmup_iterations=1,
         eval_every=2,
         total_iterations=500,
+        rematch_every=1,  # round(2000 / 6000) = 0 -> every iteration
     )
     maze = trainer.make_schedule(config.preset("medium_maze", "paper"), horizon=100)
     assert (maze.env_steps, maze.sac_updates, maze.classifier_updates) == (2000, 2000, 16)
     assert (maze.warmup_iterations, maze.eval_every, maze.total_iterations) == (1, 5, 500)
+    assert maze.rematch_every == 1
+    four_envs = dataclasses.replace(config.preset("medium_maze", "paper"), num_envs=4)
+    assert trainer.make_schedule(four_envs, horizon=100).rematch_every == 5  # 2000 / 400
+
+
+def test_held_goals_between_matchings_are_used_in_turn(medium_maze):
+    """rematch_every = 2 iterations: the second iteration keeps the matched goals (and their
+    metrics) and its envs take the next slots, K = 8 goals over 2 x 4 envs."""
+    import jax
+
+    from d2c_jax import config, trainer
+
+    cfg = config.preset("medium_maze", "tiny")
+    cfg = dataclasses.replace(
+        cfg,
+        curriculum=dataclasses.replace(cfg.curriculum, n_slots=8, pool_size=8, rematch_every=800),
+    )
+    comp = trainer.make_components(cfg, medium_maze)
+    assert comp.schedule.rematch_every == 2
+    ts = trainer.init_seed_states(cfg, comp)
+    step = trainer.make_train_step(cfg, medium_maze)
+    ts1, m1 = step(ts, jax.numpy.asarray(True))
+    ts2, m2 = step(jax.tree.map(jax.numpy.copy, ts1), jax.numpy.asarray(False))
+    np.testing.assert_array_equal(ts1.curriculum_goals, ts2.curriculum_goals)
+    for key in ("curriculum/distance", "curriculum/pool_full"):
+        np.testing.assert_array_equal(m1[key], m2[key])
+    goals = np.asarray(ts2.curriculum_goals[0])
+    first_goal = np.asarray(ts2.replay.goal[0, :8, 0])  # the first step of each episode
+    np.testing.assert_array_equal(first_goal[:4], goals[:4])  # iteration 1: slots 0..3
+    np.testing.assert_array_equal(first_goal[4:], goals[4:])  # iteration 2: slots 4..7
+    ts3, _ = step(jax.tree.map(jax.numpy.copy, ts2), jax.numpy.asarray(False))
+    assert not np.array_equal(ts3.curriculum_goals, ts2.curriculum_goals)  # matched again
 
 
 def test_sigterm_checkpoints_and_resume_continues(tmp_path):
