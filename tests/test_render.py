@@ -27,6 +27,17 @@ def _without_gl_vars() -> dict:
     return {k: v for k, v in os.environ.items() if k not in ("MUJOCO_GL", "PYOPENGL_PLATFORM")}
 
 
+def _run_python(code: str, env: dict | None = None) -> subprocess.CompletedProcess:
+    """Runs `code` in a fresh interpreter (default: without the GL variables)."""
+    return subprocess.run(
+        [sys.executable, "-c", code],
+        capture_output=True,
+        text=True,
+        env=_without_gl_vars() if env is None else env,
+        timeout=300,
+    )
+
+
 def maze_qpos(*xy_theta) -> np.ndarray:
     """(T, 3) maze qpos from (x, y, theta) triples."""
     return np.array(xy_theta, np.float32)
@@ -101,13 +112,7 @@ def test_backend_chosen_even_when_mujoco_was_imported_first(tmp_path, gl_backend
     backend = render.default_gl_backend()
     if gl_backend != backend:
         pytest.skip(f"checks the default backend ({backend}); MUJOCO_GL={gl_backend} is set")
-    out = subprocess.run(
-        [sys.executable, "-c", code],
-        capture_output=True,
-        text=True,
-        env=_without_gl_vars(),
-        timeout=300,
-    )
+    out = _run_python(code)
     assert out.returncode == 0, out.stderr
     assert out.stdout.split() == ["None", backend, "(1,", "240,", "320,", "3)", "True"]
 
@@ -120,13 +125,7 @@ def test_importing_the_package_sets_no_gl_backend():
         "print(os.environ.get('MUJOCO_GL'))\n"
         "print(sorted(m for m in ('OpenGL', 'mujoco.osmesa', 'mujoco.egl') if m in sys.modules))\n"
     )
-    out = subprocess.run(
-        [sys.executable, "-c", code],
-        capture_output=True,
-        text=True,
-        env=_without_gl_vars(),
-        timeout=300,
-    )
+    out = _run_python(code)
     assert out.returncode == 0, out.stderr
     assert out.stdout.splitlines() == ["None", "[]"]
 
@@ -143,13 +142,7 @@ def test_backend_is_chosen_when_a_renderer_is_made(gl_backend):
         "from mujoco.rendering.classic import gl_context\n"
         "print(os.environ['MUJOCO_GL'], gl_context._MUJOCO_GL)\n"
     )
-    out = subprocess.run(
-        [sys.executable, "-c", code],
-        capture_output=True,
-        text=True,
-        env=_without_gl_vars(),
-        timeout=300,
-    )
+    out = _run_python(code)
     assert out.returncode == 0, out.stderr
     assert out.stdout.split() == [gl_backend, gl_backend]
 
@@ -167,9 +160,7 @@ def test_unusable_backend_gives_a_clear_error():
         "    print(err)\n"
     )
     env = {**_without_gl_vars(), "MUJOCO_GL": "osmesa", "PYOPENGL_PLATFORM": "egl"}
-    out = subprocess.run(
-        [sys.executable, "-c", code], capture_output=True, text=True, env=env, timeout=300
-    )
+    out = _run_python(code, env)
     assert out.returncode == 0, out.stderr
     first = out.stdout.splitlines()[0]
     assert "MUJOCO_GL=osmesa" in first and "apt-get install libosmesa6" in first
