@@ -37,3 +37,18 @@ def test_write_section_replaces_in_place(tmp_path):
     assert text.count("## A") == 1 and "three" in text and "one" not in text
     assert text.index("## A") < text.index("## B")
     np.testing.assert_equal(text.endswith("two\n"), True)
+
+
+def test_visit_map_counts_points_per_cell_by_hand():
+    from benchmarks import visit_map
+
+    layout = ("#####", "#.S.#", "#####")  # start cell (1, 2) at the origin, cells 4 wide
+    points = np.array([[0.0, 0.0], [1.9, -1.9], [-4.0, 0.5], [-2.1, 0.0], [4.0, 0.0], [50, 0]])
+    counts = visit_map.cell_counts(layout, 4.0, points)
+    want = np.zeros((3, 5), int)
+    want[1, 2], want[1, 1], want[1, 3] = 2, 2, 1  # the point at x = 50 is off the map
+    np.testing.assert_array_equal(counts, want)
+    assert visit_map.draw_counts(layout, counts * 50) == ["#####", "#221#", "#####"]  # 100, 50
+    scores = np.full((3, 5), 0.05)
+    scores[1, 3] = 0.97
+    assert visit_map.draw_scores(layout, scores, [(1, 1)])[1] == "0m090"

@@ -1,0 +1,93 @@
+"""Where a maze run's agent has been, per layout cell, and what its classifier makes of it.
+
+    python -m benchmarks.visit_map RUN_DIR [--seed-index 0]
+
+Reads the run's newest checkpoint and prints three maps of the layout side by side:
+log10 of the stored states in each cell (all of them, then the curriculum phase only:
+s_0..s_walk_start of each episode), and 10 x p_pseudo at each cell centre, max over the
+modes (0-9). `#` is a wall cell no state lies in, `.` a free cell none does, `m` a mode.
+The frontier of exploration is where a digit meets a `.`; issue 10's diagnosis of
+complex_maze and spiral_maze (benchmarks/RESULTS.md) was read from these maps.
+"""
+
+from __future__ import annotations
+
+import argparse
+
+import jax
+import numpy as np
+
+from envs import layouts
+
+
+def cell_counts(layout, cell_size: float, points: np.ndarray) -> np.ndarray:
+    """(rows, cols) number of the points (n, 2) lying in each cell of the layout."""
+    r0, c0 = layouts.start_cell(layout)
+    cols = np.floor(points[:, 0] / cell_size + 0.5).astype(int) + c0
+    rows = r0 - np.floor(points[:, 1] / cell_size + 0.5).astype(int)
+    counts = np.zeros((len(layout), len(layout[0])), int)
+    inside = (rows >= 0) & (rows < counts.shape[0]) & (cols >= 0) & (cols < counts.shape[1])
+    np.add.at(counts, (rows[inside], cols[inside]), 1)
+    return counts
+
+
+def draw_counts(layout, counts: np.ndarray) -> list[str]:
+    """One string per row: log10 of each count (capped at 9), `#`/`.` where zero."""
+    return [
+        "".join(
+            str(min(9, int(np.log10(n)))) if n else ("#" if ch == "#" else ".")
+            for ch, n in zip(row, counts_row, strict=True)
+        )
+        for row, counts_row in zip(layout, counts, strict=True)
+    ]
+
+
+def draw_scores(layout, scores: np.ndarray, modes: list[tuple[int, int]]) -> list[str]:
+    """One string per row: 10 x score (0-9) per cell, `m` on the mode cells."""
+    rows = [[str(min(9, int(10 * p))) for p in row] for row in scores]
+    for r, c in modes:
+        rows[r][c] = "m"
+    return ["".join(row) for row in rows]
+
+
+def main(argv=None) -> int:
+    from d2c_jax import classifier, render, trainer
+
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("run")
+    parser.add_argument("--seed-index", type=int, default=0)
+    args = parser.parse_args(argv)
+    cfg, env, ts = render.load_run(args.run)
+    layout, size = env.layout, env.cell_size
+    rp = jax.tree.map(lambda x: np.asarray(x[args.seed_index]), ts.replay)
+    ag = rp.achieved_goal[: int(rp.size)]  # (episodes, H + 1, 2)
+    phase = np.arange(ag.shape[1])[None] <= rp.walk_start[: int(rp.size), None]
+    every = cell_counts(layout, size, ag.reshape(-1, 2))
+    curriculum_phase = cell_counts(layout, size, ag[phase])
+    centres = np.stack(
+        [
+            layouts.cell_center(layout, (r, c), size)
+            for r in range(len(layout))
+            for c in range(len(layout[0]))
+        ]
+    )
+    net = trainer.make_components(cfg, env).classifier_net
+    params = jax.tree.map(lambda x: x[args.seed_index], ts.classifier.params)
+    p = classifier.p_pseudo(net, params, centres[:, None], np.asarray(env.goal_points)[None])
+    scores = np.asarray(p).max(axis=-1).reshape(len(layout), len(layout[0]))
+    modes = [layouts.point_to_cell(layout, g, size) for g in env.goal_points]
+    print(f"{args.run}: {ag.shape[0]} episodes, {int(ts.env_steps[args.seed_index]):,} env steps")
+    print("visits (log10)   curriculum phase   10 x p_pseudo")
+    maps = zip(
+        draw_counts(layout, every),
+        draw_counts(layout, curriculum_phase),
+        draw_scores(layout, scores, modes),
+        strict=True,
+    )
+    for a, b, c in maps:
+        print(f"{a}   {b}   {c}")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
