@@ -22,9 +22,7 @@ from envs import layouts
 
 def cell_counts(layout, cell_size: float, points: np.ndarray) -> np.ndarray:
     """(rows, cols) number of the points (n, 2) lying in each cell of the layout."""
-    r0, c0 = layouts.start_cell(layout)
-    cols = np.floor(points[:, 0] / cell_size + 0.5).astype(int) + c0
-    rows = r0 - np.floor(points[:, 1] / cell_size + 0.5).astype(int)
+    rows, cols = layouts.points_to_cells(layout, points, cell_size)
     counts = np.zeros((len(layout), len(layout[0])), int)
     inside = (rows >= 0) & (rows < counts.shape[0]) & (cols >= 0) & (cols < counts.shape[1])
     np.add.at(counts, (rows[inside], cols[inside]), 1)

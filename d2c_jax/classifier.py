@@ -212,9 +212,9 @@ def marginal_kl(probs: jax.Array, prior: float, group: int = 1) -> jax.Array:
       () the KL in nats, averaged over heads (and groups).
     """
     # group = 1 (each u with its own g) is the pooled term: one group of all B rows.
-    n_groups = 1 if group == 1 else probs.shape[0] // group
-    group = probs.shape[0] if group == 1 else group
-    grouped = probs[: n_groups * group].reshape(n_groups, group, probs.shape[-1])
+    size = probs.shape[0] if group == 1 else group
+    n_groups = probs.shape[0] // size
+    grouped = probs[: n_groups * size].reshape(n_groups, size, probs.shape[-1])
     mean = jnp.clip(grouped.mean(axis=1), _P_CLIP, 1.0 - _P_CLIP)  # (n_groups, n_heads)
     kl = mean * jnp.log(mean / prior) + (1.0 - mean) * jnp.log((1.0 - mean) / (1.0 - prior))
     return kl.mean()

@@ -79,18 +79,19 @@ class HostConstants(NamedTuple):
     """Env facts the step needs, computed once on the host (never inside the trace)."""
 
     start_goal: np.ndarray  # (goal_dim,) phi of the start state, the warm-up centre
-    start_obs: np.ndarray  # (obs_dim,) an observation at the start, for the "+Value" V(s0, g)
+    start_obs: np.ndarray | None  # (obs_dim,) a start observation, only for "+Value" V(s0, g)
 
 
-def host_constants(env: envs.GoalEnv) -> HostConstants:
+def host_constants(cfg: config_lib.TrainConfig, env: envs.GoalEnv) -> HostConstants:
     """Reads the start state on the host: `env.start_goal` may reset the env and convert
-    the result to numpy, which a traced step cannot do (it crashed Sawyer before)."""
-    zero_goal = np.zeros(env.goal_dim, np.float32)
-    start = jax.jit(env.reset_with_goal)(jax.random.key(0), zero_goal)
-    return HostConstants(
-        start_goal=np.asarray(env.start_goal, np.float32),
-        start_obs=np.asarray(start.obs, np.float32),
-    )
+    the result to numpy, which a traced step cannot do (it crashed Sawyer before). The
+    start observation costs a compiled reset, so only the "+Value" ablation gets one."""
+    start_obs = None
+    if cfg.curriculum.variant == "value":
+        zero_goal = np.zeros(env.goal_dim, np.float32)
+        start = jax.jit(env.reset_with_goal)(jax.random.key(0), zero_goal)
+        start_obs = np.asarray(start.obs, np.float32)
+    return HostConstants(start_goal=np.asarray(env.start_goal, np.float32), start_obs=start_obs)
 
 
 class Components(NamedTuple):
@@ -110,7 +111,7 @@ def make_components(cfg: config_lib.TrainConfig, env: envs.GoalEnv) -> Component
         sac_nets=networks.make_networks(cfg.sac, env),
         classifier_net=classifier.make_classifier(cfg.classifier, env),
         schedule=make_schedule(cfg, env.horizon),
-        constants=host_constants(env),
+        constants=host_constants(cfg, env),
     )
 
 

@@ -97,10 +97,18 @@ def cell_center(layout: tuple[str, ...], cell: tuple[int, int], cell_size: float
 
 def point_to_cell(layout: tuple[str, ...], xy, cell_size: float) -> tuple[int, int]:
     """(row, col) of the cell containing world point xy."""
+    rows, cols = points_to_cells(layout, np.asarray(xy, np.float64)[None], cell_size)
+    return int(rows[0]), int(cols[0])
+
+
+def points_to_cells(
+    layout: tuple[str, ...], xy: np.ndarray, cell_size: float
+) -> tuple[np.ndarray, np.ndarray]:
+    """Rows (n,) and cols (n,) int of the cells containing world points xy (n, 2)."""
     r0, c0 = start_cell(layout)
-    col = int(np.floor(xy[0] / cell_size + 0.5)) + c0
-    row = r0 - int(np.floor(xy[1] / cell_size + 0.5))
-    return row, col
+    cols = np.floor(xy[:, 0] / cell_size + 0.5).astype(int) + c0
+    rows = r0 - np.floor(xy[:, 1] / cell_size + 0.5).astype(int)
+    return rows, cols
 
 
 def wall_cells(layout: tuple[str, ...]) -> list[tuple[int, int]]:
