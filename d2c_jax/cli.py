@@ -1,6 +1,6 @@
 """The `python train.py` command line (ARCHITECTURE.md, "Command line").
 
-    python train.py --env medium_maze --preset quick [--seed S] [--seeds N]
+    python train.py --env medium_maze [--preset quick] [--seed S] [--seeds N]
         [--total-steps N] [--out DIR] [--resume] [--sac.batch-size 256 ...]
 
 Any config field can be overridden as `--<section>.<field-with-dashes> VALUE`
@@ -93,7 +93,11 @@ def _parser() -> argparse.ArgumentParser:
         add_help=True,
     )
     parser.add_argument("--env", required=True, help="environment id")
-    parser.add_argument("--preset", default="paper", help="paper | quick | tiny")
+    parser.add_argument(
+        "--preset",
+        default=None,
+        help="paper | quick | tiny (default: paper with an accelerator, quick without)",
+    )
     parser.add_argument("--seed", type=int, default=None, help="first seed S")
     parser.add_argument("--seeds", type=int, default=None, help="N seeds S..S+N-1, vmapped")
     parser.add_argument("--total-steps", type=int, default=None, help="env steps to train")
@@ -102,8 +106,26 @@ def _parser() -> argparse.ArgumentParser:
     return parser
 
 
-def parse_args(argv: list[str]) -> tuple[config_lib.TrainConfig, pathlib.Path, bool]:
+NO_ACCELERATOR_NOTICE = "no GPU found: using the quick preset; --preset paper for the paper's settings"
+
+
+def default_preset(platform: str) -> tuple[str, str | None]:
+    """The preset used when none is given, and the line that says why (or None).
+
+    The paper preset (3x512 networks, one update per env step) takes about two days on
+    a CPU, so a machine whose default JAX platform is "cpu" gets the quick preset.
+    """
+    if platform == "cpu":
+        return "quick", NO_ACCELERATOR_NOTICE
+    return "paper", None
+
+
+def parse_args(
+    argv: list[str], notify: typing.Callable[[str], None] = lambda line: None
+) -> tuple[config_lib.TrainConfig, pathlib.Path, bool]:
     """Parses the command line into (config, run directory, resume).
+
+    `notify` receives the line that explains a preset chosen for the user (no --preset).
 
     Raises:
       UsageError: for any bad input.
@@ -113,8 +135,15 @@ def parse_args(argv: list[str]) -> tuple[config_lib.TrainConfig, pathlib.Path, b
 
     if known.env not in envs.ENV_NAMES:
         raise UsageError(f"unknown env {known.env!r}; valid ids: {', '.join(envs.ENV_NAMES)}")
+    preset_name = known.preset
+    if preset_name is None:
+        import jax
+
+        preset_name, notice = default_preset(jax.default_backend())
+        if notice:
+            notify(notice)
     try:
-        cfg = config_lib.preset(known.env, known.preset)
+        cfg = config_lib.preset(known.env, preset_name)
     except ValueError as err:
         raise UsageError(str(err)) from None
     for flag, field in (("seed", "seed"), ("seeds", "num_seeds"), ("total_steps", "total_steps")):
@@ -161,7 +190,7 @@ def main(argv: list[str] | None = None) -> int:
 
     enable_compilation_cache()
     try:
-        cfg, out, resume = parse_args(sys.argv[1:] if argv is None else argv)
+        cfg, out, resume = parse_args(sys.argv[1:] if argv is None else argv, notify=print)
         return trainer.train(cfg, out, resume=resume)
     except UsageError as err:
         print(f"error: {err}", file=sys.stderr)

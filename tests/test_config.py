@@ -241,3 +241,33 @@ def test_train_py_refuses_bad_input_before_compiling(args, field, tmp_path):
     assert "Traceback" not in result.stderr
     assert result.stdout == ""
     assert not (tmp_path / "run").exists()
+
+
+@pytest.mark.parametrize(
+    "platform, expected", [("cpu", ("quick", cli.NO_ACCELERATOR_NOTICE)), ("gpu", ("paper", None))]
+)
+def test_default_preset_follows_the_accelerator(platform, expected):
+    assert cli.default_preset(platform) == expected
+
+
+def test_no_preset_on_cpu_means_quick_and_says_so_first():
+    """Without --preset, a CPU-only machine gets the quick preset and is told on the first
+    line of train.py's output; an explicit --preset always wins and prints no notice."""
+    lines = []
+    cfg, _, _ = cli.parse_args(["--env", "ant"], notify=lines.append)
+    assert cfg.preset == "quick" and lines == [cli.NO_ACCELERATOR_NOTICE]
+    lines.clear()
+    cfg, _, _ = cli.parse_args(["--env", "ant", "--preset", "paper"], notify=lines.append)
+    assert cfg.preset == "paper" and lines == []
+    # The notice is the first line the user sees: train.py stops at the bad override
+    # after printing it, before anything compiles.
+    result = subprocess.run(
+        [sys.executable, "train.py", "--env", "ant", "--sac.gamma", "1"],
+        capture_output=True,
+        text=True,
+        cwd=ROOT,
+        timeout=120,
+        env={**os.environ, "JAX_PLATFORMS": "cpu"},
+    )
+    assert result.returncode == 2
+    assert result.stdout.splitlines()[0] == cli.NO_ACCELERATOR_NOTICE
