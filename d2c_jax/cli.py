@@ -106,7 +106,9 @@ def _parser() -> argparse.ArgumentParser:
     return parser
 
 
-NO_ACCELERATOR_NOTICE = "no GPU found: using the quick preset; --preset paper for the paper's settings"
+NO_ACCELERATOR_NOTICE = (
+    "no GPU found: using the quick preset; --preset paper for the paper's settings"
+)
 
 
 def default_preset(platform: str) -> tuple[str, str | None]:

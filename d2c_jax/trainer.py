@@ -43,7 +43,7 @@ class Schedule(NamedTuple):
 def make_schedule(cfg: config_lib.TrainConfig, horizon: int) -> Schedule:
     """The static schedule of SPEC §2 for `cfg` and an env of this horizon."""
     e = cfg.num_envs * horizon
-    block = sac.block_size(cfg.sac)  # updates come in whole blocks (no cond, see _sac_block)
+    block = sac.block_size(cfg.sac)  # updates come in whole blocks (no cond, see sac_block)
     return Schedule(
         env_steps=e,
         sac_updates=block * max(1, round(e * cfg.utd / block)),
@@ -168,7 +168,7 @@ def _value_fn(cfg, comp: Components, ts: TrainState):
     return value_fn
 
 
-def _sac_block(cfg, comp: Components, ts: TrainState, key) -> tuple[TrainState, dict]:
+def sac_block(cfg, comp: Components, ts: TrainState, key) -> tuple[TrainState, dict]:
     """`sac.block_size` SAC updates (critic each, actor and target on their cadences).
 
     Each update gets its own HER batch, with rewards from the current classifier. A
@@ -188,7 +188,7 @@ def _sac_block(cfg, comp: Components, ts: TrainState, key) -> tuple[TrainState, 
     return ts.replace(sac=new_sac), metrics
 
 
-def _classifier_update(cfg, comp: Components, ts: TrainState, key) -> tuple[TrainState, dict]:
+def classifier_update(cfg, comp: Components, ts: TrainState, key) -> tuple[TrainState, dict]:
     """One Eq. 5 update: negatives are achieved goals of random buffer states (of the
     curriculum phase only, with `negatives="curriculum_phase"`)."""
     k_states, k_batch = jax.random.split(key)
@@ -205,7 +205,7 @@ def _classifier_update(cfg, comp: Components, ts: TrainState, key) -> tuple[Trai
     return ts.replace(classifier=new_clf), metrics
 
 
-def _scan_updates(update, ts: TrainState, n: int, key):
+def scan_updates(update, ts: TrainState, n: int, key):
     """`n` applications of update(ts, key) -> (ts, metrics) by lax.scan; mean metrics."""
     if n == 0:
         return ts, {}
@@ -225,25 +225,25 @@ def _updates(cfg, comp: Components, ts: TrainState, key) -> tuple[TrainState, di
     """
     n = comp.schedule.sac_updates // sac.block_size(cfg.sac)
     c = comp.schedule.classifier_updates
-    sac_step = lambda ts, k: _sac_block(cfg, comp, ts, k)  # noqa: E731
-    clf_step = lambda ts, k: _classifier_update(cfg, comp, ts, k)  # noqa: E731
+    sac_step = lambda ts, k: sac_block(cfg, comp, ts, k)  # noqa: E731
+    clf_step = lambda ts, k: classifier_update(cfg, comp, ts, k)  # noqa: E731
     k_rounds, k_rest = jax.random.split(key)
     if c == 0:
-        return _scan_updates(sac_step, ts, n, k_rounds)
+        return scan_updates(sac_step, ts, n, k_rounds)
 
     def one_round(ts, k):
         k_clf, k_sac = jax.random.split(k)
         ts, clf_metrics = clf_step(ts, k_clf)
-        ts, sac_metrics = _scan_updates(sac_step, ts, n // c, k_sac)
+        ts, sac_metrics = scan_updates(sac_step, ts, n // c, k_sac)
         return ts, {**clf_metrics, **sac_metrics}
 
     ts, metrics = jax.lax.scan(one_round, ts, jax.random.split(k_rounds, c))
-    ts, rest = _scan_updates(sac_step, ts, n % c, k_rest)
+    ts, rest = scan_updates(sac_step, ts, n % c, k_rest)
     # SAC metrics: the rounds' mean where rounds hold SAC updates, else the remainder's.
     return ts, {**rest, **jax.tree.map(jnp.mean, metrics)}
 
 
-def _collect(cfg, comp: Components, ts: TrainState, goals, warmup, key):
+def collect_episodes(cfg, comp: Components, ts: TrainState, goals, warmup, key):
     """Episodes of this iteration: random actions while `warmup` (a () bool), else the actor.
 
     The warm-up flag is a traced scalar shared by all seeds, so warm-up and training
@@ -297,7 +297,7 @@ def params_finite(ts: TrainState) -> jax.Array:
     return jnp.all(jnp.stack(floats))
 
 
-def _curriculum(cfg, comp: Components, ts: TrainState, key) -> tuple[jax.Array, dict]:
+def curriculum_goals(cfg, comp: Components, ts: TrainState, key) -> tuple[jax.Array, dict]:
     """Goals (K, d) of this iteration: a new matching every `schedule.rematch_every`
     iterations, else the held goals (their `curriculum/*` metrics with them).
 
@@ -328,7 +328,7 @@ def _curriculum(cfg, comp: Components, ts: TrainState, key) -> tuple[jax.Array, 
     return jax.lax.cond(due, match, lambda: (ts.curriculum_goals, ts.matching_metrics))
 
 
-def _env_goals(cfg, comp: Components, ts: TrainState, goals: jax.Array) -> jax.Array:
+def env_goals(cfg, comp: Components, ts: TrainState, goals: jax.Array) -> jax.Array:
     """(num_envs, d) goals: env i of the r-th iteration since the matching takes slot
     (i + r * num_envs) mod K, so held goals are used in turn rather than the first ones."""
     rounds = ts.iteration % comp.schedule.rematch_every
@@ -344,8 +344,8 @@ def train_iteration(cfg, comp: Components, ts: TrainState, warmup: jax.Array):
     """
     env = comp.env
     key, k_cur, k_col, k_upd = jax.random.split(ts.key, 4)
-    goals, cur_metrics = _curriculum(cfg, comp, ts, k_cur)
-    episodes = _collect(cfg, comp, ts, _env_goals(cfg, comp, ts, goals), warmup, k_col)
+    goals, cur_metrics = curriculum_goals(cfg, comp, ts, k_cur)
+    episodes = collect_episodes(cfg, comp, ts, env_goals(cfg, comp, ts, goals), warmup, k_col)
     ts = ts.replace(
         replay=replay.insert_episodes(ts.replay, episodes),
         curriculum_goals=goals,

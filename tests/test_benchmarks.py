@@ -52,3 +52,18 @@ def test_visit_map_counts_points_per_cell_by_hand():
     scores = np.full((3, 5), 0.05)
     scores[1, 3] = 0.97
     assert visit_map.draw_scores(layout, scores, [(1, 1)])[1] == "0m090"
+
+
+def test_profile_table_shares_add_up_by_hand():
+    """Each part's share is its time over the whole; "other" is what the parts miss."""
+    from benchmarks import profile
+    from d2c_jax import config, trainer
+
+    sched = trainer.make_schedule(config.preset("medium_maze", "quick"), horizon=100)
+    parts = {"env steps": 0.5, "SAC updates": 1.0}
+    row = {"env": "m", "parts": parts, "whole": 2.0, "other": 0.5, "env_steps_per_s": 1000.0}
+    table = profile.profile_table([{**row, "schedule": sched}])
+    last = table.splitlines()[-1]
+    assert "500 ms (25%)" in last and "1000 ms (50%)" in last
+    assert last.endswith("| 500 ms | 2.00 s | 1000 |")
+    assert "| m | 2000 / 500 / 16 |" in last  # E = 20 x 100, M = E / 4, C = 16
