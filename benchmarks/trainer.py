@@ -1,6 +1,7 @@
 """Whole-trainer benchmarks: throughput, seed scaling and memory.
 
     python -m benchmarks.trainer [--parts throughput seeds memory curriculum]
+    python -m benchmarks.trainer --parts seeds --env ant --preset paper --seeds 1 8
 
 prints the numbers; `python -m benchmarks.run` writes them into RESULTS.md.
 
@@ -14,8 +15,9 @@ iterations (the mean is within a few % of it on an idle machine).
   curriculum, intrinsic reward); also at 2x256 with batch 256. 4 parallel episodes per
   iteration (400 env steps, 400 updates) keep an iteration short on a CPU; the update
   count per env step is what sets the rate.
-- seeds: the `quick` preset, 1, 4 and 16 vmapped seeds; seconds per iteration, relative
-  to one seed and to running the seeds one after another (n x one seed).
+- seeds: the `quick` preset, 1, 4 and 16 vmapped seeds (or `--env`, `--preset`,
+  `--seeds`); seconds per iteration, env steps/s per seed, relative to one seed and to
+  running the seeds one after another (n x one seed).
 - memory: the `paper` preset with its 3e6-transition buffer, in a fresh process: peak
   resident memory after init, after compiling, and after one executed iteration (M set to
   one SAC block: the buffers and per-update temporaries are those of the real preset),
@@ -113,19 +115,22 @@ def throughput_rows(env_name: str = "medium_maze") -> dict[tuple[str, str], floa
     return out
 
 
-def seed_scaling(env_name: str = "medium_maze", seeds=(1, 4, 16)) -> str:
+def seed_scaling(env_name: str = "medium_maze", seeds=(1, 4, 16), preset: str = "quick") -> str:
+    """Seconds per iteration of `preset` on `env_name` with 1..N vmapped seeds, and the
+    env steps/s each seed gets (issue 15 §6 runs it as `--env ant --preset paper`)."""
     rows = [
-        "| vmapped seeds | s / iteration | compile (s) | vs 1 seed | "
+        "| vmapped seeds | s / iteration | compile (s) | env steps/s per seed | vs 1 seed | "
         "vs the seeds run one after another |",
-        "|---|---|---|---|---|",
+        "|---|---|---|---|---|---|",
     ]
     one = None
     for n in seeds:
-        cfg = dataclasses.replace(config.preset(env_name, "quick"), num_seeds=n)
+        cfg = dataclasses.replace(config.preset(env_name, preset), num_seeds=n)
         seconds, compile_s = iteration_seconds(cfg)
+        per_seed = trainer.make_schedule(cfg, envs.make(env_name).horizon).env_steps / seconds
         one = one or seconds
         rows.append(
-            f"| {n} | {seconds:.2f} | {compile_s:.0f} | {seconds / one:.2f}x | "
+            f"| {n} | {seconds:.2f} | {compile_s:.0f} | {per_seed:,.0f} | {seconds / one:.2f}x | "
             f"{seconds / (n * one):.2f} of the time |"
         )
         print(rows[-1], flush=True)
@@ -230,6 +235,9 @@ def main(argv=None) -> int:
         "--parts", nargs="+", default=["throughput", "seeds", "memory"],
         choices=["throughput", "seeds", "memory", "curriculum"],
     )  # fmt: skip
+    parser.add_argument("--env", default="medium_maze", help="env of the seeds part")
+    parser.add_argument("--preset", default="quick", help="preset of the seeds part")
+    parser.add_argument("--seeds", type=int, nargs="+", default=[1, 4, 16])
     parser.add_argument("--memory-child", metavar="ENV", help=argparse.SUPPRESS)
     args = parser.parse_args(argv)
     if args.memory_child:
@@ -240,7 +248,7 @@ def main(argv=None) -> int:
             f"{variant} {size}: {rate:,.1f} env steps/s"
             for (size, variant), rate in throughput_rows().items()
         ),
-        "seeds": seed_scaling,
+        "seeds": lambda: seed_scaling(args.env, tuple(args.seeds), args.preset),
         "memory": memory_table,
         "curriculum": curriculum_share,
     }
