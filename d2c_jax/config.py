@@ -223,7 +223,7 @@ def paper_preset(env: str) -> TrainConfig:
 def quick_preset(env: str) -> TrainConfig:
     """Tuned to learn fast on a laptop CPU (see docs/DEVIATIONS.md, "quick preset")."""
     cfg = paper_preset(env)
-    return dataclasses.replace(
+    quick = dataclasses.replace(
         cfg,
         preset="quick",
         num_envs=20,
@@ -233,6 +233,41 @@ def quick_preset(env: str) -> TrainConfig:
         sac=dataclasses.replace(cfg.sac, hidden_sizes=(256, 256), batch_size=256),
         replay=ReplayConfig(capacity=1_000_000),
         classifier=dataclasses.replace(cfg.classifier, hidden_sizes=(128, 128), batch_size=256),
+    )
+    if env in _TRAP_MAZES:
+        quick = dataclasses.replace(with_outpace_exploration(quick), utd=1.0)
+    return quick
+
+
+# Mazes whose Euclidean traps stop D2C as SPEC §3-§6 write it (issue 10): their quick
+# preset adds OUTPACE's exploration options and the paper's one SAC update per env step
+# (docs/DEVIATIONS.md, "Exploration options"; run U in benchmarks/RESULTS.md).
+_TRAP_MAZES = ("complex_maze", "spiral_maze")
+
+
+def with_outpace_exploration(cfg: TrainConfig) -> TrainConfig:
+    """`cfg` with issue 10's exploration options on (variant A of benchmarks/RESULTS.md):
+    OUTPACE's post-success random walk and random-walk buffer, negatives from the
+    curriculum phase, a 400-episode archive in the matching pool, pool candidates from
+    trajectory tails, and the marginal term (mu = 1, prior 0.3)."""
+    return dataclasses.replace(
+        cfg,
+        replay=dataclasses.replace(cfg.replay, walk_fraction=0.2),
+        classifier=dataclasses.replace(
+            cfg.classifier,
+            marginal_weight=1.0,
+            marginal_prior=0.3,
+            negatives="curriculum_phase",
+        ),
+        curriculum=dataclasses.replace(
+            cfg.curriculum,
+            post_success_rule="outpace",
+            post_success_candidates=10,
+            post_success_switch_every=10,
+            archive_size=400,
+            pool_tail_fraction=0.5,
+            pool_min_move=0.2,
+        ),
     )
 
 

@@ -271,3 +271,16 @@ def test_no_preset_on_cpu_means_quick_and_says_so_first():
     )
     assert result.returncode == 2
     assert result.stdout.splitlines()[0] == cli.NO_ACCELERATOR_NOTICE
+
+
+def test_quick_preset_adds_exploration_only_on_the_trap_mazes():
+    """complex/spiral quick = variant U of RESULTS.md (the exploration options and utd 1);
+    every other env's quick preset keeps SPEC §3-§6 as written."""
+    for env in envs.ENV_NAMES:
+        quick = config.preset(env, "quick")
+        if env in ("complex_maze", "spiral_maze"):
+            base = dataclasses.replace(config.preset("medium_maze", "quick"), env=env)
+            assert quick == dataclasses.replace(config.with_outpace_exploration(base), utd=1.0)
+        else:
+            assert quick.curriculum.post_success_rule == "argmax" and quick.utd == 0.25
+            assert quick.classifier.marginal_weight == 0.0 and quick.curriculum.archive_size == 0
