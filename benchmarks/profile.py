@@ -91,9 +91,7 @@ def part_seconds(cfg: config.TrainConfig, env, repeats: int = 3) -> dict[str, fl
         "env steps": held,
         "goal choice": best_seconds(collect, (ts, key), repeats) - held,
         "SAC updates": best_seconds(sac_updates, (ts, key), repeats),
-        "classifier updates": best_seconds(classifier_updates, (ts, key), repeats)
-        if sched.classifier_updates
-        else 0.0,
+        "classifier updates": best_seconds(classifier_updates, (ts, key), repeats),
         "curriculum": best_seconds(matching, (due, key), repeats) / sched.rematch_every,
     }
     return parts

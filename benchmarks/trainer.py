@@ -124,10 +124,11 @@ def seed_scaling(env_name: str = "medium_maze", seeds=(1, 4, 16), preset: str = 
         "|---|---|---|---|---|---|",
     ]
     one = None
+    horizon = envs.make(env_name).horizon
     for n in seeds:
         cfg = dataclasses.replace(config.preset(env_name, preset), num_seeds=n)
         seconds, compile_s = iteration_seconds(cfg)
-        per_seed = trainer.make_schedule(cfg, envs.make(env_name).horizon).env_steps / seconds
+        per_seed = trainer.make_schedule(cfg, horizon).env_steps / seconds
         one = one or seconds
         rows.append(
             f"| {n} | {seconds:.2f} | {compile_s:.0f} | {per_seed:,.0f} | {seconds / one:.2f}x | "
