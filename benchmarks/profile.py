@@ -10,7 +10,10 @@ is made of, each compiled alone and timed on a replay buffer filled by real iter
   §6) minus the above;
 - SAC updates: the iteration's M updates with their HER batches and classifier rewards;
 - classifier updates: its Eq. 5 updates;
-- curriculum: one matching (Eq. 7 costs + auction), divided by the iterations it serves.
+- curriculum: one matching (Eq. 7 costs + auction), divided by the iterations it serves;
+- evaluation: one SPEC §7 evaluation (`eval_episodes` per mode, deterministic policy),
+  divided by the iterations between evaluations. It is outside the train step, so it is
+  not in "iteration"; "env steps/s" counts it, as a user's run does.
 
 Each part is the best of `repeats` timed calls after one untimed call; the whole
 iteration is `benchmarks.trainer.iteration_seconds` (a whole matching cycle). Parts run
@@ -104,21 +107,35 @@ def profile_row(env_name: str, preset: str = "quick") -> dict:
     parts = part_seconds(cfg, env)
     whole, _ = iteration_seconds(cfg)
     sched = trainer.make_schedule(cfg, env.horizon)
+    evaluation = evaluation_seconds(cfg, env) / sched.eval_every
     return {
         "env": env_name,
         "parts": parts,
         "whole": whole,
         "other": whole - sum(parts.values()),
-        "env_steps_per_s": sched.env_steps / whole,
+        "evaluation": evaluation,
+        "env_steps_per_s": sched.env_steps / (whole + evaluation),
         "schedule": sched,
     }
+
+
+def evaluation_seconds(cfg: config.TrainConfig, env, repeats: int = 3) -> float:
+    """Seconds of one scheduled evaluation of a fresh policy (its cost does not depend
+    on the weights: every episode runs the full horizon)."""
+    comp = trainer.make_components(cfg, env)
+    ts = trainer.init_seed_states(cfg, comp)
+    keys = jax.random.split(jax.random.key(2), cfg.num_seeds)
+    return best_seconds(trainer.make_eval_step(cfg, env), (ts, keys), repeats)
 
 
 def profile_table(rows: list[dict]) -> str:
     """A Markdown table: ms per iteration of each part (and its share of the whole)."""
     names = list(rows[0]["parts"])
-    head = "| env | E / M / C | " + " | ".join(names) + " | other | iteration | env steps/s |"
-    lines = [head, "|" + "---|" * (len(names) + 5)]
+    head = (
+        "| env | E / M / C / eval every | " + " | ".join(names) + " | other | iteration "
+        "| evaluation per iteration | env steps/s |"
+    )
+    lines = [head, "|" + "---|" * (len(names) + 6)]
     for row in rows:
         whole, sched = row["whole"], row["schedule"]
         cells = [
@@ -126,8 +143,10 @@ def profile_table(rows: list[dict]) -> str:
         ]
         lines.append(
             f"| {row['env']} | {sched.env_steps} / {sched.sac_updates} / "
-            f"{sched.classifier_updates} | " + " | ".join(cells) + f" | "
-            f"{1e3 * row['other']:.0f} ms | {whole:.2f} s | {row['env_steps_per_s']:.0f} |"
+            f"{sched.classifier_updates} / {sched.eval_every} | " + " | ".join(cells) + " | "
+            f"{1e3 * row['other']:.0f} ms | {whole:.2f} s | "
+            f"{1e3 * row['evaluation']:.0f} ms ({100 * row['evaluation'] / whole:.0f}%) | "
+            f"{row['env_steps_per_s']:.0f} |"
         )
     return "\n".join(lines)
 

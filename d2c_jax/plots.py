@@ -22,7 +22,8 @@ def draw_map(ax, env, show_goals: bool = True) -> None:
 
     Args:
       ax: a matplotlib Axes.
-      env: a GoalEnv; if it has `layout` and `cell_size`, every wall cell is drawn.
+      env: a GoalEnv; if it has `layout` and `cell_size`, every wall cell is drawn, else
+        its bounds and its `obstacles_xy` boxes ((n, 2) centres, (n, 2) half-sizes), if any.
       show_goals: draw the mode points with their success radius.
     """
     low, high = np.asarray(env.goal_low)[:2], np.asarray(env.goal_high)[:2]
@@ -35,6 +36,8 @@ def draw_map(ax, env, show_goals: bool = True) -> None:
         margin = env.cell_size
     else:
         ax.add_patch(Rectangle(low, *(high - low), fill=False, ec="0.35", lw=1.5))
+        for (x, y), (hx, hy) in zip(*getattr(env, "obstacles_xy", ((), ())), strict=True):
+            ax.add_patch(Rectangle((x - hx, y - hy), 2 * hx, 2 * hy, color="0.35", lw=0))
         margin = 0.05 * float(np.max(high - low))
     if show_goals:
         for k, g in enumerate(np.asarray(env.goal_points)):
@@ -97,14 +100,38 @@ def _mean_std_line(ax, steps, values, label, color=None) -> None:
         ax.fill_between(steps, mean - std, mean + std, color=line.get_color(), alpha=0.2)
 
 
+def training_minutes(rows: list[dict]) -> tuple[np.ndarray, np.ndarray]:
+    """(env_steps (n,), minutes (n,)): wall-clock minutes of training up to each row, the
+    running sum of `time/iteration_s` (so a resumed run's restarted clock and its compile
+    time do not count)."""
+    rows = [r for r in rows if "time/iteration_s" in r]
+    steps = np.array([r["env_steps"] for r in rows], np.float64)
+    minutes = np.cumsum([r["time/iteration_s"] for r in rows]) / 60.0
+    return steps, minutes
+
+
+def _minutes_axis(ax, rows: list[dict]) -> None:
+    """A top x axis in training minutes, mapped from the env steps below it."""
+    steps, minutes = training_minutes(rows)
+    if len(steps) < 2:
+        return
+    top = ax.secondary_xaxis(
+        "top",
+        functions=(lambda s: np.interp(s, steps, minutes), lambda m: np.interp(m, minutes, steps)),
+    )
+    top.set_xlabel("minutes")
+
+
 def success_curve(rows: list[dict], n_modes: int, path) -> None:
-    """eval/success per mode and their mean over env steps (mean +- std over seeds)."""
+    """eval/success per mode and their mean over env steps (mean +- std over seeds), with
+    the training minutes on a top axis."""
     fig, ax = plt.subplots(figsize=(6, 4))
     for k in range(n_modes):
         steps, values = _series(rows, f"eval/success/{k}")
         _mean_std_line(ax, steps, values, f"mode {k}")
     steps, values = _series(rows, "eval/success")
     _mean_std_line(ax, steps, values, "mean", color="k")
+    _minutes_axis(ax, rows)
     ax.set_xlabel("env steps")
     ax.set_ylabel("success")
     ax.set_ylim(-0.05, 1.05)

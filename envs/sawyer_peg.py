@@ -117,6 +117,9 @@ class SawyerPeg(GoalEnv):
         self.name = f"sawyer_{task}"
         self.goal_points = np.array([(x, y, GOAL_Z[task]) for x, y in GOAL_XY], np.float32)
         self.goal_low, self.goal_high = GOAL_LOW.copy(), GOAL_HIGH.copy()
+        centre, half = CENTRAL_WALL[task]
+        # (n, 2) centres and half-sizes in xy of the obstacles a top-down map draws.
+        self.obstacles_xy = (np.array([centre[:2]], np.float32), np.array([half[:2]], np.float32))
         # Push goals stay on the table: no noise on z (SPEC §1, §3, §5, §6).
         self.goal_noise_mask = np.array([1, 1, 0 if task == "push" else 1], np.float32)
         self.mj_model = build_model(task)

@@ -55,15 +55,40 @@ def test_visit_map_counts_points_per_cell_by_hand():
 
 
 def test_profile_table_shares_add_up_by_hand():
-    """Each part's share is its time over the whole; "other" is what the parts miss."""
+    """Each part's share is its time over the whole; "other" is what the parts miss; the
+    evaluation's share is also over the train step's whole."""
     from benchmarks import profile
     from d2c_jax import config, trainer
 
     sched = trainer.make_schedule(config.preset("medium_maze", "quick"), horizon=100)
     parts = {"env steps": 0.5, "SAC updates": 1.0}
-    row = {"env": "m", "parts": parts, "whole": 2.0, "other": 0.5, "env_steps_per_s": 1000.0}
+    row = {"env": "m", "parts": parts, "whole": 2.0, "other": 0.5, "evaluation": 0.4}
+    row["env_steps_per_s"] = 1000.0
     table = profile.profile_table([{**row, "schedule": sched}])
     last = table.splitlines()[-1]
     assert "500 ms (25%)" in last and "1000 ms (50%)" in last
-    assert last.endswith("| 500 ms | 2.00 s | 1000 |")
-    assert "| m | 2000 / 500 / 16 |" in last  # E = 20 x 100, M = E / 4, C = 16
+    assert last.endswith("| 500 ms | 2.00 s | 400 ms (20%) | 1000 |")
+    # E = 20 x 100, M = E / 4, C = 16, an evaluation every 10k env steps = 5 iterations
+    assert "| m | 2000 / 500 / 16 / 5 |" in last
+
+
+def test_visit_map_head_maps_put_each_head_on_its_cell():
+    """head_maps[i, r, c] is head i's f_i at the centre of cell (r, c), for any net."""
+    import jax
+
+    from benchmarks import visit_map
+    from d2c_jax import classifier
+    from envs import layouts
+
+    layout = ("#####", "#.S.#", "#...#", "#####")
+    net = classifier.Classifier(
+        n_heads=3, hidden_sizes=(8,), goal_low=(-8.0, -8.0), goal_high=(8.0, 8.0)
+    )
+    params = net.init(jax.random.key(0), np.zeros((1, 2)), np.zeros((1, 2)))
+    goal = np.array([4.0, -4.0], np.float32)
+    maps = visit_map.head_maps(net, params, layout, 4.0, goal)
+    assert maps.shape == (3, 4, 5)
+    centre = layouts.cell_center(layout, (2, 3), 4.0)
+    want = np.asarray(classifier.head_probs(net, params, centre[None], goal[None]))[0]
+    np.testing.assert_allclose(maps[:, 2, 3], want, rtol=1e-6)
+    assert len(set(np.round(maps[0].ravel(), 6))) > 1  # cells differ: no constant map

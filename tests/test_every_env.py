@@ -26,3 +26,47 @@ def test_tiny_preset_trains_and_evaluates(env_name, tmp_path):
     for key in ("eval/success", "curriculum/distance", "sac/critic_loss", "classifier/loss"):
         assert np.isfinite(last[key]), key
     assert (out / "plots" / "curriculum.png").exists()
+
+
+def _goal_spread(row: dict, start_goal: np.ndarray) -> float:
+    """Mean distance of a row's curriculum goals (K, d) from the start goal."""
+    goals = np.asarray(row["curriculum/goals"], np.float64).reshape(-1, start_goal.shape[-1])
+    return float(np.linalg.norm(goals - start_goal, axis=-1).mean())
+
+
+# One env per family and the env steps its quick preset needs to move the goals (seed 0,
+# measured on the issue-15 learning runs: Ant's goals are 3.7 from the start at 156k,
+# Sawyer push's 0.19 at 300k).
+_FAMILIES = [("medium_maze", 40_000), ("ant", 200_000), ("sawyer_push", 320_000)]
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("env_name, total_steps", _FAMILIES)
+def test_quick_preset_moves_the_curriculum_away_from_the_start(env_name, total_steps, tmp_path):
+    """A short quick-preset run (seed 0) takes the curriculum goals away from the start.
+
+    After the warm-up the matched goals begin at the start (where the pool's states are).
+    They must end at least twice as far from it. On the maze the paper-style
+    `curriculum/distance` must also end at least 20% below its first value; on Ant's
+    U-shaped maze and behind Sawyer's wall the goals first move along the way round,
+    which is no nearer the desired outcomes in straight-line distance, so there the
+    paper's metric only falls late in a run (benchmarks/RESULTS.md).
+    """
+    from d2c_jax import logging as logging_lib
+
+    cfg, _, _ = cli.parse_args(
+        ["--env", env_name, "--preset", "quick", "--total-steps", str(total_steps)]
+    )
+    out = tmp_path / "run"
+    assert trainer.train(cfg, out, quiet=True) == 0
+    env = envs.make(env_name)
+    warmup = trainer.make_schedule(cfg, env.horizon).warmup_iterations
+    rows = [r for r in logging_lib.read_metrics(out / "metrics.jsonl") if r["iteration"] > warmup]
+    with_goals = [r for r in rows if "curriculum/goals" in r]
+    start = np.asarray(env.start_goal(), np.float64)
+    first, last = _goal_spread(with_goals[0], start), _goal_spread(with_goals[-1], start)
+    assert last >= 2 * first, (first, last)
+    if env_name == "medium_maze":
+        first_distance = rows[0]["curriculum/distance"]
+        end_distance = np.mean([r["curriculum/distance"] for r in rows[-3:]])
+        assert end_distance <= 0.8 * first_distance, (first_distance, end_distance)
