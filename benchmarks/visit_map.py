@@ -1,8 +1,10 @@
-"""Where a maze run's agent has been, per layout cell, and what its classifier makes of it.
+"""Where a run's agent has been, per cell, and what its classifier makes of it.
 
     python -m benchmarks.visit_map RUN_DIR [--seed-index 0] [--per-head]
 
-Reads the run's newest checkpoint and prints three maps of the layout side by side:
+Reads the run's newest checkpoint and prints three maps side by side, over the maze's
+layout (mazes, Ant) or the table cut into 0.1 squares seen from above (Sawyer; scored at
+the modes' height):
 log10 of the stored states in each cell (all of them, then the curriculum phase only:
 s_0..s_walk_start of each episode), and 10 x p_pseudo at each cell centre, max over the
 modes (0-9). `#` is a wall cell no state lies in, `.` a free cell none does, `m` a mode.
@@ -17,20 +19,13 @@ curriculum is mode-agnostic, docs/DEVIATIONS.md).
 from __future__ import annotations
 
 import argparse
+from collections.abc import Callable
+from typing import NamedTuple
 
 import jax
 import numpy as np
 
 from envs import layouts
-
-
-def cell_counts(layout, cell_size: float, points: np.ndarray) -> np.ndarray:
-    """(rows, cols) number of the points (n, 2) lying in each cell of the layout."""
-    rows, cols = layouts.points_to_cells(layout, points, cell_size)
-    counts = np.zeros((len(layout), len(layout[0])), int)
-    inside = (rows >= 0) & (rows < counts.shape[0]) & (cols >= 0) & (cols < counts.shape[1])
-    np.add.at(counts, (rows[inside], cols[inside]), 1)
-    return counts
 
 
 def draw_counts(layout, counts: np.ndarray) -> list[str]:
@@ -52,25 +47,74 @@ def draw_scores(layout, scores: np.ndarray, modes: list[tuple[int, int]]) -> lis
     return ["".join(row) for row in rows]
 
 
-def cell_centres(layout, cell_size: float) -> np.ndarray:
-    """(rows * cols, 2) world xy of every cell centre, row-major."""
-    return np.stack(
+class Grid(NamedTuple):
+    """Cells to count and score on: a maze's layout, or a table cut into squares."""
+
+    layout: tuple[str, ...]  # rows of '#' (wall or obstacle) and '.' cells, +y first
+    centres: np.ndarray  # (rows * cols, goal_dim) goal-space point scored in each cell
+    cell_of: Callable[[np.ndarray], tuple[np.ndarray, np.ndarray]]  # xy (n, 2) -> rows, cols
+
+
+def layout_grid(layout, cell_size: float) -> Grid:
+    """A maze's own cells (2-d goals)."""
+    centres = np.stack(
         [
             layouts.cell_center(layout, (r, c), cell_size)
             for r in range(len(layout))
             for c in range(len(layout[0]))
         ]
     )
+    return Grid(tuple(layout), centres, lambda xy: layouts.points_to_cells(layout, xy, cell_size))
 
 
-def head_maps(net, params, layout, cell_size: float, goal: np.ndarray) -> np.ndarray:
+def table_grid(env, cell: float = 0.1) -> Grid:
+    """Squares of `cell` over the goal bounds' xy, scored at the modes' mean height; a
+    square whose centre lies in one of `env.obstacles_xy` is drawn '#'."""
+    low, high = np.asarray(env.goal_low[:2], np.float64), np.asarray(env.goal_high[:2])
+    n_cols, n_rows = np.round((high - low) / cell).astype(int)
+    xs = low[0] + (np.arange(n_cols) + 0.5) * cell
+    ys = high[1] - (np.arange(n_rows) + 0.5) * cell
+    xy = np.stack(np.meshgrid(xs, ys), axis=-1).reshape(-1, 2)  # row-major, +y first
+    z = np.asarray(env.goal_points)[:, 2:].mean(axis=0)
+    centres = np.concatenate([xy, np.broadcast_to(z, (len(xy), len(z)))], axis=-1)
+    blocked = np.zeros(len(xy), bool)
+    for centre, half in zip(*getattr(env, "obstacles_xy", ((), ())), strict=True):
+        blocked |= np.all(np.abs(xy - centre) <= half, axis=-1)
+    layout = tuple(
+        "".join("#" if b else "." for b in row) for row in blocked.reshape(n_rows, n_cols)
+    )
+
+    def cell_of(points):
+        cols = np.floor((points[:, 0] - low[0]) / cell).astype(int)
+        rows = np.floor((high[1] - points[:, 1]) / cell).astype(int)
+        return rows, cols
+
+    return Grid(layout, centres.astype(np.float32), cell_of)
+
+
+def env_grid(env) -> Grid:
+    """The maze's layout if the env has one, else its table in 0.1 squares."""
+    if hasattr(env, "layout"):
+        return layout_grid(env.layout, env.cell_size)
+    return table_grid(env)
+
+
+def grid_counts(grid: Grid, points: np.ndarray) -> np.ndarray:
+    """(rows, cols) number of the points (n, >= 2) lying in each cell of the grid."""
+    rows, cols = grid.cell_of(np.asarray(points, np.float64)[:, :2])
+    counts = np.zeros((len(grid.layout), len(grid.layout[0])), int)
+    inside = (rows >= 0) & (rows < counts.shape[0]) & (cols >= 0) & (cols < counts.shape[1])
+    np.add.at(counts, (rows[inside], cols[inside]), 1)
+    return counts
+
+
+def head_maps(net, params, grid: Grid, goal: np.ndarray) -> np.ndarray:
     """(n_heads, rows, cols): each head's f_i(cell centre; goal), goal (d,)."""
     from d2c_jax import classifier
 
-    centres = cell_centres(layout, cell_size)
-    goals = np.broadcast_to(np.asarray(goal, np.float32), centres.shape)
-    probs = np.asarray(classifier.head_probs(net, params, centres, goals))  # (n, heads)
-    return probs.T.reshape(-1, len(layout), len(layout[0]))
+    goals = np.broadcast_to(np.asarray(goal, np.float32), grid.centres.shape)
+    probs = np.asarray(classifier.head_probs(net, params, grid.centres, goals))  # (n, heads)
+    return probs.T.reshape(-1, len(grid.layout), len(grid.layout[0]))
 
 
 def main(argv=None) -> int:
@@ -82,18 +126,20 @@ def main(argv=None) -> int:
     parser.add_argument("--per-head", action="store_true", help="each head's map per mode")
     args = parser.parse_args(argv)
     cfg, env, ts = render.load_run(args.run)
-    layout, size = env.layout, env.cell_size
+    grid = env_grid(env)
+    layout = grid.layout
     rp = jax.tree.map(lambda x: np.asarray(x[args.seed_index]), ts.replay)
-    ag = rp.achieved_goal[: int(rp.size)]  # (episodes, H + 1, 2)
+    ag = rp.achieved_goal[: int(rp.size)]  # (episodes, H + 1, goal_dim)
     phase = np.arange(ag.shape[1])[None] <= rp.walk_start[: int(rp.size), None]
-    every = cell_counts(layout, size, ag.reshape(-1, 2))
-    curriculum_phase = cell_counts(layout, size, ag[phase])
-    centres = cell_centres(layout, size)
+    every = grid_counts(grid, ag.reshape(-1, ag.shape[-1]))
+    curriculum_phase = grid_counts(grid, ag[phase])
     net = trainer.make_components(cfg, env).classifier_net
     params = jax.tree.map(lambda x: x[args.seed_index], ts.classifier.params)
-    p = classifier.p_pseudo(net, params, centres[:, None], np.asarray(env.goal_points)[None])
+    goal_points = np.asarray(env.goal_points)
+    p = classifier.p_pseudo(net, params, grid.centres[:, None], goal_points[None])
     scores = np.asarray(p).max(axis=-1).reshape(len(layout), len(layout[0]))
-    modes = [layouts.point_to_cell(layout, g, size) for g in env.goal_points]
+    mode_rows, mode_cols = grid.cell_of(goal_points[:, :2].astype(np.float64))
+    modes = list(zip(mode_rows.tolist(), mode_cols.tolist(), strict=True))
     print(f"{args.run}: {ag.shape[0]} episodes, {int(ts.env_steps[args.seed_index]):,} env steps")
     print("visits (log10)   curriculum phase   10 x p_pseudo")
     maps = zip(
@@ -105,9 +151,9 @@ def main(argv=None) -> int:
     for a, b, c in maps:
         print(f"{a}   {b}   {c}")
     if args.per_head:
-        for k, goal in enumerate(env.goal_points):
-            heads = head_maps(net, params, layout, size, goal)
-            print(f"mode {k} at {tuple(float(v) for v in goal)}: 10 x f_i(cell; g_{k})")
+        for k, goal in enumerate(goal_points):
+            heads = head_maps(net, params, grid, goal)
+            print(f"mode {k} at {tuple(round(float(v), 3) for v in goal)}: 10 x f_i(cell; g_{k})")
             print("   ".join(f"head {i}".ljust(len(layout[0])) for i in range(len(heads))))
             drawn = [draw_scores(layout, h, modes) for h in heads]
             for row in zip(*drawn, strict=True):

@@ -44,7 +44,7 @@ def test_visit_map_counts_points_per_cell_by_hand():
 
     layout = ("#####", "#.S.#", "#####")  # start cell (1, 2) at the origin, cells 4 wide
     points = np.array([[0.0, 0.0], [1.9, -1.9], [-4.0, 0.5], [-2.1, 0.0], [4.0, 0.0], [50, 0]])
-    counts = visit_map.cell_counts(layout, 4.0, points)
+    counts = visit_map.grid_counts(visit_map.layout_grid(layout, 4.0), points)
     want = np.zeros((3, 5), int)
     want[1, 2], want[1, 1], want[1, 3] = 2, 2, 1  # the point at x = 50 is off the map
     np.testing.assert_array_equal(counts, want)
@@ -86,9 +86,34 @@ def test_visit_map_head_maps_put_each_head_on_its_cell():
     )
     params = net.init(jax.random.key(0), np.zeros((1, 2)), np.zeros((1, 2)))
     goal = np.array([4.0, -4.0], np.float32)
-    maps = visit_map.head_maps(net, params, layout, 4.0, goal)
+    maps = visit_map.head_maps(net, params, visit_map.layout_grid(layout, 4.0), goal)
     assert maps.shape == (3, 4, 5)
     centre = layouts.cell_center(layout, (2, 3), 4.0)
     want = np.asarray(classifier.head_probs(net, params, centre[None], goal[None]))[0]
     np.testing.assert_allclose(maps[:, 2, 3], want, rtol=1e-6)
     assert len(set(np.round(maps[0].ravel(), 6))) > 1  # cells differ: no constant map
+
+
+def test_visit_map_table_grid_by_hand():
+    """Sawyer's table in 0.1 squares: 12 x 8 over x in [-0.6, 0.6], y in [0.2, 1.0]; the
+    central wall's squares are '#'; points land in the square that holds them."""
+    import envs
+    from benchmarks import visit_map
+
+    env = envs.make("sawyer_push")
+    grid = visit_map.table_grid(env)
+    assert len(grid.layout) == 8 and len(grid.layout[0]) == 12
+    # The wall (x in [-0.01, 0.01], y in [0.35, 0.85]) holds no square centre (they sit at
+    # x = -0.05 and 0.05), so the map has no '#'.
+    assert "#" not in "".join(grid.layout)
+    np.testing.assert_allclose(grid.centres[0], [-0.55, 0.95, 0.02], atol=1e-6)
+    points = np.array([[0.42, 0.78], [0.45, 0.75], [-0.55, 0.25], [0.7, 0.5]])
+    counts = visit_map.grid_counts(grid, points)
+    assert counts[2, 10] == 2 and counts[7, 0] == 1 and counts.sum() == 3  # x = 0.7 is off
+
+    class Boxed:
+        goal_low, goal_high = np.array([0.0, 0.0, 0.0]), np.array([0.4, 0.2, 0.0])
+        goal_points = np.zeros((1, 3))
+        obstacles_xy = (np.array([[0.15, 0.05]]), np.array([[0.11, 0.04]]))  # x 0.04-0.26
+
+    assert visit_map.table_grid(Boxed()).layout == ("....", "###.")
