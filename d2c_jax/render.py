@@ -1,6 +1,6 @@
 """Headless MuJoCo rendering of env states: RGB frames, goal markers, GIF/MP4 files.
 
-    python -m d2c_jax.render RUN_DIR [--out RUN_DIR/policy.gif]
+    python -m d2c_jax.render RUN_DIR [--out RUN_DIR/policy.gif] [--still strip.png]
 
 renders a trained run's policy reaching each goal mode (one tile per mode).
 
@@ -352,6 +352,17 @@ def tile(frames: np.ndarray, cols: int | None = None) -> np.ndarray:
     return grid.reshape(t, rows * h, cols * w, c)
 
 
+def still_strip(frames: np.ndarray, n_times: int = 5) -> np.ndarray:
+    """One picture of whole episodes: (n, T, H, W, 3) -> (n * H, n_times * W, 3).
+
+    Row i is episode i at `n_times` evenly spaced steps from the first to the last frame.
+    """
+    n, t, h, w, c = frames.shape
+    times = np.linspace(0, t - 1, n_times).round().astype(int)
+    picked = frames[:, times]  # (n, n_times, H, W, 3)
+    return picked.transpose(0, 2, 1, 3, 4).reshape(n * h, n_times * w, c)
+
+
 def save_video(frames: np.ndarray, path, fps: float = 20.0) -> pathlib.Path:
     """Writes frames (T, H, W, 3) uint8 as a GIF (looping) or, for a .mp4 path, an MP4.
 
@@ -466,8 +477,12 @@ def render_policy(
     width: int = 240,
     height: int = 240,
     fps: float = 20.0,
+    still=None,
 ) -> pathlib.Path:
     """Renders a trained run's policy reaching each goal mode: one tile per mode, one video.
+
+    With `still` (a .png path), also writes `still_strip` of the same episodes: one row per
+    mode, five moments of its episode.
 
     Returns the path written (default RUN_DIR/policy.gif).
     """
@@ -475,8 +490,20 @@ def render_policy(
     policy = trained_policy(cfg, env, ts, seed_index)
     traj = run_episodes(env, policy, env.goal_points, jax.random.key(key))
     frames = render_frames(env, traj, width=width, height=height)  # (n_modes, H+1, h, w, 3)
+    if still is not None:
+        save_image(still_strip(frames), still)
     out = pathlib.Path(run_dir) / "policy.gif" if out is None else out
     return save_video(tile(frames), out, fps=fps)
+
+
+def save_image(image: np.ndarray, path) -> pathlib.Path:
+    """Writes one picture (H, W, 3) uint8 (format from the suffix, e.g. .png)."""
+    import imageio.v3 as iio
+
+    path = pathlib.Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    iio.imwrite(path, np.asarray(image, np.uint8))
+    return path
 
 
 def main(argv=None) -> int:
@@ -486,6 +513,7 @@ def main(argv=None) -> int:
     parser.add_argument("--seed-index", type=int, default=0, help="which seed of a sweep")
     parser.add_argument("--size", type=int, default=240, help="tile width and height")
     parser.add_argument("--fps", type=float, default=20.0)
+    parser.add_argument("--still", default=None, help="also a still strip (.png): 5 moments")
     args = parser.parse_args(argv)
     try:
         path = render_policy(
@@ -495,6 +523,7 @@ def main(argv=None) -> int:
             width=args.size,
             height=args.size,
             fps=args.fps,
+            still=args.still,
         )
     except (FileNotFoundError, RuntimeError) as err:
         print(f"error: {err}", file=sys.stderr)

@@ -184,3 +184,16 @@ def test_render_cli_without_a_run_exits_2(tmp_path):
     )
     assert out.returncode == 2
     assert out.stderr.startswith("error: ") and "no config.json" in out.stderr
+
+
+def test_still_strip_puts_episodes_in_rows_and_moments_in_columns(tmp_path):
+    """Pure array layout (no GL): frame value = 10 * episode + step."""
+    n, t, h, w = 2, 9, 3, 4
+    frames = (10 * np.arange(n)[:, None] + np.arange(t)[None]).astype(np.uint8)
+    frames = np.broadcast_to(frames[:, :, None, None, None], (n, t, h, w, 3))
+    strip = render.still_strip(frames, n_times=3)  # steps 0, 4, 8
+    assert strip.shape == (n * h, 3 * w, 3)
+    assert strip[0, 0, 0] == 0 and strip[0, w, 0] == 4 and strip[0, 2 * w, 0] == 8
+    assert strip[h, 0, 0] == 10 and strip[h, 2 * w, 0] == 18
+    path = render.save_image(strip, tmp_path / "strip.png")
+    np.testing.assert_array_equal(iio.imread(path)[..., :3], strip)
