@@ -63,7 +63,7 @@ def test_quick_preset_moves_the_curriculum_away_from_the_start(env_name, total_s
     warmup = trainer.make_schedule(cfg, env.horizon).warmup_iterations
     rows = [r for r in logging_lib.read_metrics(out / "metrics.jsonl") if r["iteration"] > warmup]
     with_goals = [r for r in rows if "curriculum/goals" in r]
-    start = np.asarray(env.start_goal(), np.float64)
+    start = np.asarray(env.start_goal, np.float64)
     first, last = _goal_spread(with_goals[0], start), _goal_spread(with_goals[-1], start)
     assert last >= 2 * first, (first, last)
     if env_name == "medium_maze":
