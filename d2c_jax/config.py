@@ -130,6 +130,9 @@ class CurriculumConfig:
     """Pool episodes whose phi moved at most this from start to end are not candidates."""
     archive_size: int = 0
     """Pool episodes drawn uniformly from the whole buffer, beside the P most recent."""
+    goal_value_weight: float = 0.0
+    """beta: each Eq. 7 edge cost less beta * (1 - gamma) * V(s, g_j+), the critic's value
+    of reaching slot j's desired example from candidate s (0: Eq. 7 alone)."""
     rematch_every: int = 2000
     """Env steps between matchings (whole iterations; OUTPACE: every 20 episodes); the envs
     of the iterations in between take the next slots of the held goals in turn."""

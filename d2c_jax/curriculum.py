@@ -21,6 +21,8 @@ from envs import GoalEnv, goal_distance
 
 # value_fn(goals (P, T', d)) -> (P, T') V(s0, g) = min_i Q_i(s0, pi(s0, g), g)
 ValueFn = Callable[[jax.Array], jax.Array]
+# goal_value_fn(obs (P, T', o), goal (d,)) -> (P, T') V(s, g) = min_i Q_i(s, pi(s, g), g)
+GoalValueFn = Callable[[jax.Array, jax.Array], jax.Array]
 
 
 def _noise_mask(env: GoalEnv) -> jax.Array:
@@ -102,12 +104,17 @@ def cost_matrix(
     value_fn: ValueFn | None = None,
     value_scale: float = 0.0,
     tail_fraction: float = 1.0,
+    pool_obs: jax.Array | None = None,
+    goal_value_fn: GoalValueFn | None = None,
+    goal_value_scale: float = 0.0,
 ) -> tuple[jax.Array, jax.Array]:
     """Eq. 7 edge costs and their argmin states.
 
     cost[j, k] = min_t w(phi(s_kt), g_j+), w(x, g+) = BCE(p_pseudo(x; g+), p_pseudo(g+; g+)),
     over the subsampled steps of trajectory k. With `value_fn` (the "+Value" ablation,
-    appendix C.2), w' = w - value_scale * V(s0, phi(s_kt)).
+    appendix C.2), w' = w - value_scale * V(s0, phi(s_kt)). With `goal_value_fn`, also
+    w' = w - goal_value_scale * V(s_kt, g_j+): of two equally novel candidates, the one the
+    critic rates nearer (in time) to slot j's desired example.
 
     Args:
       net: classifier module; params: its parameters.
@@ -117,10 +124,14 @@ def cost_matrix(
       value_fn: optional V over goals, (P, T', d) -> (P, T').
       value_scale: weight of V, (1 - gamma) for the "+Value" ablation.
       tail_fraction: score only the last this fraction of each trajectory (`subsample`).
+      pool_obs: (P, T, o) observations of the pool states; needed by `goal_value_fn`.
+      goal_value_fn: optional V(s, g) over observations and one goal.
+      goal_value_scale: weight of V(s, g_j+).
     Returns:
       cost (K, P) and candidates (K, P, d), the argmin state of each edge.
     """
     traj = subsample(pool_ag, stride, tail_fraction)  # (P, T', d)
+    traj_obs = None if goal_value_fn is None else subsample(pool_obs, stride, tail_fraction)
     y = p_pseudo(net, params, slots, slots)  # (K,) soft target p_pseudo(g+; g+)
     value = None if value_fn is None else value_scale * value_fn(traj)  # (P, T')
     pool_index = jnp.arange(traj.shape[0])
@@ -132,6 +143,8 @@ def cost_matrix(
         w = soft_bce(log_p, log_q, target)
         if value is not None:
             w = w - value
+        if goal_value_fn is not None:
+            w = w - goal_value_scale * goal_value_fn(traj_obs, slot)
         best = jnp.argmin(w, axis=-1)  # (P,)
         return w[pool_index, best], traj[pool_index, best]
 
@@ -186,13 +199,17 @@ def propose(
     gamma: float = 0.99,
     *,
     eps: float,
+    pool_obs: jax.Array | None = None,
+    goal_value_fn: GoalValueFn | None = None,
 ) -> tuple[jax.Array, Metrics]:
     """K curriculum goals (SPEC §5, Eq. 6-7).
 
     Variant "d2c": match slots to distinct pool trajectories by the auction on Eq. 7 costs;
     goal j = matched candidate + U[-c, c] * mask (c = eps), clipped. "value": the same
     with w' = w - (1 - gamma) V(s0, phi(s)). "none": the slots themselves (fresh desired
-    examples). Until all pool entries are valid, "d2c"/"value" return the warm-up goals.
+    examples). With `cfg.goal_value_weight` beta > 0, each edge cost also loses
+    beta (1 - gamma) V(s, g_j+) (`cost_matrix`). Until all pool entries are valid,
+    "d2c"/"value" return the warm-up goals.
     Trajectories that moved at most `cfg.pool_min_move` are matched only if nothing else
     is left. The matching always runs and `jnp.where` selects (no `lax.cond`): under vmap
     over seeds a cond would run both branches anyway, and an empty pool gives a constant
@@ -209,6 +226,8 @@ def propose(
       value_fn: V over goals (P, T', d) -> (P, T'); required by variant "value".
       gamma: SAC discount, for the (1 - gamma) scale of the "+Value" ablation.
       eps: half-width c of the goal noise (Table 3 'eps', the classifier's eps).
+      pool_obs: (P, T, o) observations of the pool states; needed when beta > 0.
+      goal_value_fn: V(s, g) over observations and one goal; needed when beta > 0.
     Returns:
       goals (K, d) and metrics {"curriculum/distance" (paper §5.1, `matched_distance`),
       "curriculum/slot_distance" (each goal to its own slot), "curriculum/matched_cost",
@@ -222,9 +241,15 @@ def propose(
         if cfg.variant == "value" and value_fn is None:
             raise ValueError("curriculum variant 'value' needs a value_fn")
         fn = value_fn if cfg.variant == "value" else None
+        if cfg.goal_value_weight > 0 and (goal_value_fn is None or pool_obs is None):
+            raise ValueError("curriculum.goal_value_weight > 0 needs pool_obs and goal_value_fn")
+        use_goal_value = cfg.goal_value_weight > 0
         cost, candidates = cost_matrix(
             net, params, slots, pool_ag, cfg.cost_stride, fn,
             value_scale=1.0 - gamma, tail_fraction=cfg.pool_tail_fraction,
+            pool_obs=pool_obs if use_goal_value else None,
+            goal_value_fn=goal_value_fn if use_goal_value else None,
+            goal_value_scale=cfg.goal_value_weight * (1.0 - gamma),
         )  # fmt: skip
         if cfg.pool_min_move > 0:
             cost = jnp.where(moved(pool_ag, cfg.pool_min_move)[None], cost, _UNUSABLE_COST)

@@ -248,11 +248,21 @@ def recent_episodes_achieved_goals(state: ReplayState, p: int) -> tuple[jax.Arra
     Raises:
       ValueError: if p > n_slots.
     """
+    slots, valid = recent_episode_slots(state, p)
+    return state.achieved_goal[slots], valid
+
+
+def recent_episode_slots(state: ReplayState, p: int) -> tuple[jax.Array, jax.Array]:
+    """Buffer slots (p,) int32 of the p most recent episodes, most recent first, and valid
+    (p,) bool (false beyond the episodes stored so far).
+
+    Raises:
+      ValueError: if p > n_slots.
+    """
     if p > state.n_slots:
         raise ValueError(f"pool of {p} episodes exceeds the buffer's {state.n_slots} slots")
     back = jnp.arange(p, dtype=jnp.int32)
-    slots = (state.ptr - 1 - back) % state.n_slots
-    return state.achieved_goal[slots], back < state.size
+    return (state.ptr - 1 - back) % state.n_slots, back < state.size
 
 
 def archived_episodes_achieved_goals(
@@ -271,10 +281,23 @@ def archived_episodes_achieved_goals(
       achieved goals (a, H + 1, goal_dim), and valid (a,) bool (false while fewer than `a`
       episodes are stored).
     """
+    slots, valid = archived_episode_slots(state, a, key)
+    return state.achieved_goal[slots], valid
+
+
+def archived_episode_slots(
+    state: ReplayState, a: int, key: jax.Array
+) -> tuple[jax.Array, jax.Array]:
+    """Buffer slots (a,) of `a` distinct episodes uniform over the stored ones, and valid
+    (a,) bool (false while fewer than `a` episodes are stored).
+
+    Raises:
+      ValueError: if a > n_slots.
+    """
     if a > state.n_slots:
         raise ValueError(f"archive of {a} episodes exceeds the buffer's {state.n_slots} slots")
     filled = jnp.arange(state.n_slots) < state.size
     # Gumbel top-k: a uniform sample without replacement among the filled slots.
     scores = jnp.where(filled, jax.random.gumbel(key, (state.n_slots,)), -jnp.inf)
     _, slots = jax.lax.top_k(scores, a)
-    return state.achieved_goal[slots], filled[slots]
+    return slots, filled[slots]

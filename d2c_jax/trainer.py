@@ -275,19 +275,32 @@ def _matching_pool(cfg, ts: TrainState, key) -> tuple[jax.Array, jax.Array]:
     pool counts as full (the warm-up ends) as soon as P episodes exist.
 
     Returns:
-      achieved goals (P + A, H + 1, d) and valid (P + A,) bool.
+      buffer slots (P + A,) int32 and valid (P + A,) bool.
     """
-    recent, valid = replay.recent_episodes_achieved_goals(ts.replay, cfg.curriculum.pool_size)
+    slots, valid = replay.recent_episode_slots(ts.replay, cfg.curriculum.pool_size)
     if cfg.curriculum.archive_size == 0:
-        return recent, valid
-    archived, archived_valid = replay.archived_episodes_achieved_goals(
+        return slots, valid
+    archived, archived_valid = replay.archived_episode_slots(
         ts.replay, cfg.curriculum.archive_size, key
     )
-    archived = jnp.where(archived_valid[:, None, None], archived, recent[:1])
+    archived = jnp.where(archived_valid, archived, slots[0])
     return (
-        jnp.concatenate([recent, archived]),
+        jnp.concatenate([slots, archived]),
         jnp.concatenate([valid, jnp.broadcast_to(valid[0], archived_valid.shape)]),
     )
+
+
+def _goal_value_fn(cfg, comp: Components, ts: TrainState):
+    """V(s, g) = min_i Q_i(s, pi(s, g), g) over pool observations (P, T', o) and one goal
+    (d,), for `curriculum.goal_value_weight`; None when that is 0."""
+    if cfg.curriculum.goal_value_weight == 0:
+        return None
+
+    def goal_value_fn(obs, goal):
+        goals = jnp.broadcast_to(goal, obs.shape[:-1] + goal.shape)
+        return sac.state_value(comp.sac_nets, ts.sac, comp.env, obs, goals)
+
+    return goal_value_fn
 
 
 def params_finite(ts: TrainState) -> jax.Array:
@@ -306,7 +319,10 @@ def curriculum_goals(cfg, comp: Components, ts: TrainState, key) -> tuple[jax.Ar
     """
 
     def match():
-        pool_ag, pool_valid = _matching_pool(cfg, ts, jax.random.fold_in(key, 1))
+        slots, pool_valid = _matching_pool(cfg, ts, jax.random.fold_in(key, 1))
+        goal_value_fn = _goal_value_fn(cfg, comp, ts)
+        pool_ag = ts.replay.achieved_goal[slots]  # (P + A, H + 1, d)
+        pool_obs = None if goal_value_fn is None else ts.replay.obs[slots]
         goals, metrics = curriculum.propose(
             cfg.curriculum,
             comp.env,
@@ -319,6 +335,8 @@ def curriculum_goals(cfg, comp: Components, ts: TrainState, key) -> tuple[jax.Ar
             _value_fn(cfg, comp, ts),
             cfg.sac.gamma,
             eps=cfg.classifier.eps,
+            pool_obs=pool_obs,
+            goal_value_fn=goal_value_fn,
         )
         return goals, jax.tree.map(lambda x: x.astype(jnp.float32), metrics)
 

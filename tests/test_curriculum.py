@@ -144,6 +144,49 @@ def test_value_variant_subtracts_scaled_value():
     np.testing.assert_allclose(shifted, base - 0.5, atol=1e-5)  # (1 - 0.99) * 50
 
 
+class FlatNet(nn.Module):
+    """A classifier that says 0.5 everywhere: every candidate is equally novel."""
+
+    @nn.compact
+    def __call__(self, x, g):
+        return jnp.zeros(x.shape[:-1] + (2,))
+
+
+def test_goal_value_breaks_ties_between_equally_novel_candidates():
+    """With p_pseudo = 0.5 everywhere every edge costs log 2; V(s, g_j) then picks, for
+    each slot, the pool state the critic rates nearest its desired example."""
+    slots = jnp.array([[16.0, 16.0], [-16.0, -16.0]])
+    pool_obs = POOL  # stand-in observations: the states' xy
+
+    def goal_value_fn(obs, goal):  # a critic that knows the straight-line distance
+        return 100.0 - jnp.linalg.norm(obs - goal, axis=-1)
+
+    flat, _ = cur.cost_matrix(FlatNet(), NO_PARAMS, slots, POOL, 4)
+    np.testing.assert_allclose(flat, np.log(2.0), atol=1e-6)  # a tie everywhere
+    cost, cand = cur.cost_matrix(
+        FlatNet(), NO_PARAMS, slots, POOL, 4,
+        pool_obs=pool_obs, goal_value_fn=goal_value_fn, goal_value_scale=0.01,
+    )  # fmt: skip
+    np.testing.assert_array_equal(np.asarray(cost).argmin(1), [1, 3])  # the two mode ends
+    states = np.asarray(cur.subsample(POOL, 4))  # (P, T', 2) the scored states
+    dist = np.linalg.norm(states[None] - np.asarray(slots)[:, None, None], axis=-1)
+    want = np.log(2.0) - 0.01 * (100.0 - dist.min(axis=-1))  # each line's nearest state
+    np.testing.assert_allclose(cost, want, atol=1e-5)
+    np.testing.assert_allclose(cand[0, 1], ENDS[1], atol=1e-6)
+    cfg = dataclasses.replace(CFG, n_slots=2, goal_value_weight=1.0)
+    goals, _ = jax.jit(
+        lambda: cur.propose(
+            cfg, ENV, FlatNet(), NO_PARAMS, POOL, 6, jnp.zeros(2), jax.random.key(0),
+            eps=EPS, pool_obs=pool_obs, goal_value_fn=goal_value_fn,
+        )
+    )()  # fmt: skip
+    assert np.linalg.norm(goals - ENV.goal_points, axis=-1).max() < 1.5
+    with pytest.raises(ValueError, match="goal_value_weight"):
+        cur.propose(
+            cfg, ENV, FlatNet(), NO_PARAMS, POOL, 6, jnp.zeros(2), jax.random.key(0), eps=EPS
+        )
+
+
 # --- matching ------------------------------------------------------------------------
 
 
