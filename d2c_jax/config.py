@@ -267,7 +267,8 @@ def with_outpace_exploration(cfg: TrainConfig) -> TrainConfig:
     """`cfg` with issue 10's exploration options on (variant A of benchmarks/RESULTS.md):
     OUTPACE's post-success random walk and random-walk buffer, negatives from the
     curriculum phase, a 400-episode archive in the matching pool, pool candidates from
-    trajectory tails, and the marginal term (mu = 1, prior 0.3)."""
+    trajectory tails (episodes that moved at least 0.08 r), and the marginal term (mu = 1,
+    prior 0.3)."""
     return dataclasses.replace(
         cfg,
         replay=dataclasses.replace(cfg.replay, walk_fraction=0.2),
@@ -284,9 +285,15 @@ def with_outpace_exploration(cfg: TrainConfig) -> TrainConfig:
             post_success_switch_every=10,
             archive_size=400,
             pool_tail_fraction=0.5,
-            pool_min_move=0.2,
+            # OUTPACE's 0.2 maze units, scaled by Table 3's r (2.5 on the mazes and Ant):
+            # on Sawyer's table (r = 0.1 m) an absolute 0.2 m would leave most episodes out.
+            pool_min_move=_MIN_MOVE_PER_R * cfg.curriculum.post_success_range,
         ),
     )
+
+
+# OUTPACE's minimum move (0.2 maze units) per unit of Table 3's post-success range r.
+_MIN_MOVE_PER_R = 0.2 / 2.5
 
 
 def tiny_preset(env: str) -> TrainConfig:

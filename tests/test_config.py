@@ -299,3 +299,13 @@ def test_quick_preset_adds_exploration_everywhere_but_medium_maze():
         else:
             want = dataclasses.replace(config.with_outpace_exploration(base), eval_every=30_000)
             assert quick == want
+
+
+def test_exploration_min_move_is_outpace_s_on_the_mazes_and_scaled_by_r_elsewhere():
+    """OUTPACE's 0.2 maze units where r = 2.5 (mazes, Ant); 0.2 m would be a quarter of
+    Sawyer's table, so there it is 0.08 r = 8 mm."""
+    for env in envs.ENV_NAMES:
+        cfg = config.with_outpace_exploration(config.preset(env, "paper"))
+        want = 0.2 if env not in ("sawyer_push", "sawyer_pick_place") else 0.008
+        assert cfg.curriculum.pool_min_move == pytest.approx(want), env
+    assert config.preset("complex_maze", "quick").curriculum.pool_min_move == 0.2  # exactly
