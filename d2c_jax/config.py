@@ -252,8 +252,8 @@ _TRAP_ENVS = ("complex_maze", "spiral_maze", "ant", "sawyer_push", "sawyer_pick_
 # - the two trap mazes: the paper's one SAC update per env step (run U of RESULTS.md, the
 #   only configuration measured to learn complex_maze);
 # - Ant and Sawyer: an evaluation every 30k env steps instead of 10k; an evaluation runs
-#   as many env steps as a training iteration (20 or 30 episodes of the horizon), which
-#   every 10k env steps cost 14-17% of the run (`python -m benchmarks.profile`).
+#   as many env steps as a training iteration (20 or 30 episodes of the horizon): every
+#   10k env steps 11-14% of the train step's time, every 30k 4-5% (`benchmarks.profile`).
 _QUICK_OVERRIDES: dict[str, dict] = {
     "complex_maze": dict(utd=1.0),
     "spiral_maze": dict(utd=1.0),
