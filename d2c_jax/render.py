@@ -363,18 +363,25 @@ def still_strip(frames: np.ndarray, n_times: int = 5) -> np.ndarray:
     return picked.transpose(0, 2, 1, 3, 4).reshape(n * h, n_times * w, c)
 
 
+def _imageio():
+    """imageio.v3, or an ImportError saying how to install it."""
+    try:
+        import imageio.v3 as iio
+    except ImportError as err:
+        raise ImportError(
+            "saving videos and pictures needs imageio: "
+            "pip install 'd2c_jax[notebooks]' (or imageio)"
+        ) from err
+    return iio
+
+
 def save_video(frames: np.ndarray, path, fps: float = 20.0) -> pathlib.Path:
     """Writes frames (T, H, W, 3) uint8 as a GIF (looping) or, for a .mp4 path, an MP4.
 
     GIF needs only imageio (with Pillow); MP4 also needs an ffmpeg plugin
     (`pip install imageio[ffmpeg]`). Returns the path.
     """
-    try:
-        import imageio.v3 as iio
-    except ImportError as err:
-        raise ImportError(
-            "saving videos needs imageio: pip install 'd2c_jax[notebooks]' (or imageio)"
-        ) from err
+    iio = _imageio()
     path = pathlib.Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     frames = np.asarray(frames, np.uint8)
@@ -498,8 +505,7 @@ def render_policy(
 
 def save_image(image: np.ndarray, path) -> pathlib.Path:
     """Writes one picture (H, W, 3) uint8 (format from the suffix, e.g. .png)."""
-    import imageio.v3 as iio
-
+    iio = _imageio()
     path = pathlib.Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     iio.imwrite(path, np.asarray(image, np.uint8))

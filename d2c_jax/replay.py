@@ -236,25 +236,10 @@ def sample_achieved_goals(
     return state.achieved_goal[ep, t]
 
 
-def recent_episodes_achieved_goals(state: ReplayState, p: int) -> tuple[jax.Array, jax.Array]:
-    """The achieved-goal trajectories of the p most recent episodes (SPEC §5 pool).
-
-    Args:
-      state: the buffer.
-      p: number of episodes (static, p <= n_slots).
-    Returns:
-      achieved goals (p, H + 1, goal_dim), most recent first, and valid (p,) bool,
-      false for rows beyond the episodes stored so far (their contents are meaningless).
-    Raises:
-      ValueError: if p > n_slots.
-    """
-    slots, valid = recent_episode_slots(state, p)
-    return state.achieved_goal[slots], valid
-
-
 def recent_episode_slots(state: ReplayState, p: int) -> tuple[jax.Array, jax.Array]:
-    """Buffer slots (p,) int32 of the p most recent episodes, most recent first, and valid
-    (p,) bool (false beyond the episodes stored so far).
+    """Buffer slots (p,) int32 of the p most recent episodes (SPEC §5 pool), most recent
+    first, and valid (p,) bool (false beyond the episodes stored so far, whose contents
+    are meaningless). `state.achieved_goal[slots]` are their trajectories.
 
     Raises:
       ValueError: if p > n_slots.
@@ -265,31 +250,14 @@ def recent_episode_slots(state: ReplayState, p: int) -> tuple[jax.Array, jax.Arr
     return (state.ptr - 1 - back) % state.n_slots, back < state.size
 
 
-def archived_episodes_achieved_goals(
-    state: ReplayState, a: int, key: jax.Array
-) -> tuple[jax.Array, jax.Array]:
-    """The achieved-goal trajectories of `a` distinct episodes uniform over the buffer.
-
-    The curriculum's long memory (issue 10 rule 5; HGG keeps a pool of 1000 trajectories):
-    a frontier state reached once, long ago, stays a matching candidate.
-
-    Args:
-      state: the buffer.
-      a: number of episodes (static, a <= n_slots).
-      key: PRNG key.
-    Returns:
-      achieved goals (a, H + 1, goal_dim), and valid (a,) bool (false while fewer than `a`
-      episodes are stored).
-    """
-    slots, valid = archived_episode_slots(state, a, key)
-    return state.achieved_goal[slots], valid
-
-
 def archived_episode_slots(
     state: ReplayState, a: int, key: jax.Array
 ) -> tuple[jax.Array, jax.Array]:
     """Buffer slots (a,) of `a` distinct episodes uniform over the stored ones, and valid
     (a,) bool (false while fewer than `a` episodes are stored).
+
+    The curriculum's long memory (issue 10 rule 5; HGG keeps a pool of 1000 trajectories):
+    a frontier state reached once, long ago, stays a matching candidate.
 
     Raises:
       ValueError: if a > n_slots.

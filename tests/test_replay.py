@@ -111,17 +111,19 @@ def test_sample_achieved_goals_covers_every_state_of_filled_slots():
 
 def test_recent_episodes_most_recent_first_with_validity():
     state = replay.insert_episodes(fresh(5), make_episodes([0, 1, 2]))
-    ag, valid = replay.recent_episodes_achieved_goals(state, 4)
+    slots, valid = replay.recent_episode_slots(state, 4)
+    ag = state.achieved_goal[slots]
     chex.assert_shape(ag, (4, H + 1, GOAL))
     np.testing.assert_array_equal(ag[:3, 0, 0], [200, 100, 0])
     np.testing.assert_array_equal(valid, [True, True, True, False])
     state = replay.insert_episodes(state, make_episodes([3, 4, 5]))  # wraps: slot 0 = ep 5
-    ag, valid = replay.recent_episodes_achieved_goals(state, 5)
+    slots, valid = replay.recent_episode_slots(state, 5)
+    ag = state.achieved_goal[slots]
     np.testing.assert_array_equal(ag[:, 0, 0], [500, 400, 300, 200, 100])
     np.testing.assert_array_equal(ag[0, :, 1], [500.5, 501.5, 502.5, 503.5])
     assert bool(valid.all())
     with pytest.raises(ValueError):
-        replay.recent_episodes_achieved_goals(state, 6)
+        replay.recent_episode_slots(state, 6)
 
 
 def test_insert_traces_once_and_vmaps_over_seeds():
@@ -187,10 +189,11 @@ def test_negatives_from_the_curriculum_phase_only():
 
 def test_archive_draws_distinct_filled_episodes():
     state = phased_buffer()
-    ag, valid = replay.archived_episodes_achieved_goals(state, 4, jax.random.key(3))
+    slots, valid = replay.archived_episode_slots(state, 4, jax.random.key(3))
+    ag = state.achieved_goal[slots]
     assert np.all(valid)
     assert sorted((np.asarray(ag)[:, 0, 0] // 100).tolist()) == [0, 1, 2, 3]
-    ag, valid = replay.archived_episodes_achieved_goals(state, 6, jax.random.key(3))
+    slots, valid = replay.archived_episode_slots(state, 6, jax.random.key(3))
     assert int(np.asarray(valid).sum()) == 4  # two rows beyond the stored episodes
     with pytest.raises(ValueError, match="archive"):
-        replay.archived_episodes_achieved_goals(state, 7, jax.random.key(3))
+        replay.archived_episode_slots(state, 7, jax.random.key(3))
