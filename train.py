@@ -2,7 +2,7 @@
 
 import sys
 
-from d2c_jax import cli
+from d2c_jax.training import cli
 
 if __name__ == "__main__":
     sys.exit(cli.main())

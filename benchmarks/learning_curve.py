@@ -15,8 +15,8 @@ import sys
 
 import numpy as np
 
-from d2c_jax import logging as logging_lib
-from d2c_jax import plots
+from d2c_jax.training import logging as logging_lib
+from d2c_jax.viewing import plots
 
 
 def eval_rows(rows: list[dict]) -> list[dict]:

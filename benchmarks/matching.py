@@ -21,7 +21,7 @@ import optax
 from scipy.optimize import linear_sum_assignment
 
 from benchmarks import results
-from d2c_jax import matching
+from d2c_jax.curricula import matching
 
 SIZES = ((20, 100), (256, 512), (1024, 2048))
 BATCH = 16

@@ -31,7 +31,9 @@ import jax.numpy as jnp
 
 import envs
 from benchmarks.trainer import iteration_seconds
-from d2c_jax import config, rollout, sac, trainer
+from d2c_jax import config
+from d2c_jax.core import rollout, sac
+from d2c_jax.training import agent as trainer
 
 
 def best_seconds(fn, args, repeats: int) -> float:

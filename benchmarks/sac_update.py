@@ -28,7 +28,8 @@ import numpy as np
 
 import envs
 from benchmarks import results
-from d2c_jax import config, her, networks, sac
+from d2c_jax import config
+from d2c_jax.core import networks, sac, types
 
 SIZES = {"paper": ((512, 512, 512), 512), "small": ((256, 256), 256)}
 """Network sizes of every SAC comparison (here, benchmarks.sb3, benchmarks.trainer):
@@ -96,7 +97,7 @@ def sac_config(size: str, actor_every: int) -> config.SACConfig:
     )
 
 
-def random_batch(env, batch: int, n: int, seed: int = 0) -> her.Batch:
+def random_batch(env, batch: int, n: int, seed: int = 0) -> types.Batch:
     """n stacked random batches of (obs, action, reward, next obs, goal, mask) (n, B, .)."""
     rng = np.random.default_rng(seed)
     lo, hi = env.goal_low, env.goal_high
@@ -106,7 +107,7 @@ def random_batch(env, batch: int, n: int, seed: int = 0) -> her.Batch:
         rest = rng.uniform(-1, 1, (n, batch, env.obs_dim - 2))
         return jnp.asarray(np.concatenate([xy, rest], -1), jnp.float32)
 
-    return her.Batch(
+    return types.Batch(
         obs=obs(),
         action=jnp.asarray(rng.uniform(-1, 1, (n, batch, env.action_dim)), jnp.float32),
         reward=jnp.asarray(rng.uniform(0, 1, (n, batch)), jnp.float32),

@@ -39,7 +39,10 @@ import numpy as np
 
 import envs
 from benchmarks.sac_update import SIZES
-from d2c_jax import config, curriculum, sac, trainer
+from d2c_jax import config
+from d2c_jax.core import sac
+from d2c_jax.curricula import curriculum
+from d2c_jax.training import agent as trainer
 
 
 def sb3_settings(cfg: config.TrainConfig, hidden, batch: int) -> config.TrainConfig:

@@ -110,7 +110,7 @@ def grid_counts(grid: Grid, points: np.ndarray) -> np.ndarray:
 
 def head_maps(net, params, grid: Grid, goal: np.ndarray) -> np.ndarray:
     """(n_heads, rows, cols): each head's f_i(cell centre; goal), goal (d,)."""
-    from d2c_jax import classifier
+    from d2c_jax.curricula import classifier
 
     goals = np.broadcast_to(np.asarray(goal, np.float32), grid.centres.shape)
     probs = np.asarray(classifier.head_probs(net, params, grid.centres, goals))  # (n, heads)
@@ -118,7 +118,9 @@ def head_maps(net, params, grid: Grid, goal: np.ndarray) -> np.ndarray:
 
 
 def main(argv=None) -> int:
-    from d2c_jax import classifier, render, trainer
+    from d2c_jax.curricula import classifier
+    from d2c_jax.training import agent as trainer
+    from d2c_jax.viewing import render
 
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("run")

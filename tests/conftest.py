@@ -27,7 +27,7 @@ def medium_maze():
 def gl_backend():
     """The MuJoCo GL backend a renderer would use; skips the test, saying why, when it
     cannot render (checked once per process, in a subprocess: see render.gl_backend_available)."""
-    from d2c_jax import render
+    from d2c_jax.viewing import render
 
     backend = render.resolve_gl_backend()
     ok, why = render.gl_backend_available(backend)

@@ -58,7 +58,8 @@ def test_profile_table_shares_add_up_by_hand():
     """Each part's share is its time over the whole; "other" is what the parts miss; the
     evaluation's share is also over the train step's whole."""
     from benchmarks import profile
-    from d2c_jax import config, trainer
+    from d2c_jax import config
+    from d2c_jax.training import agent as trainer
 
     sched = trainer.make_schedule(config.preset("medium_maze", "quick"), horizon=100)
     parts = {"env steps": 0.5, "SAC updates": 1.0}
@@ -77,7 +78,7 @@ def test_visit_map_head_maps_put_each_head_on_its_cell():
     import jax
 
     from benchmarks import visit_map
-    from d2c_jax import classifier
+    from d2c_jax.curricula import classifier
     from envs import layouts
 
     layout = ("#####", "#.S.#", "#...#", "#####")

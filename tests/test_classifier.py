@@ -9,8 +9,8 @@ import numpy as np
 import optax
 import pytest
 
-from d2c_jax import classifier as clf
 from d2c_jax.config import ClassifierConfig
+from d2c_jax.curricula import classifier as clf
 from envs.base import GoalEnv
 
 

@@ -17,7 +17,9 @@ import typing
 import pytest
 
 import envs
-from d2c_jax import cli, config, run_loop, validation
+from d2c_jax import config
+from d2c_jax.training import cli, validation
+from d2c_jax.training import loop as run_loop
 
 ROOT = pathlib.Path(__file__).resolve().parents[1]
 

@@ -8,9 +8,9 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from d2c_jax import classifier as clf
-from d2c_jax import curriculum as cur
 from d2c_jax.config import ClassifierConfig, CurriculumConfig
+from d2c_jax.curricula import classifier as clf
+from d2c_jax.curricula import curriculum as cur
 from envs.base import GoalEnv
 
 

@@ -8,7 +8,8 @@ import numpy as np
 import pytest
 
 import envs
-from d2c_jax import cli, trainer
+from d2c_jax.training import agent as trainer
+from d2c_jax.training import cli
 
 
 @pytest.mark.parametrize("env_name", envs.ENV_NAMES)
@@ -16,7 +17,7 @@ def test_tiny_preset_trains_and_evaluates(env_name, tmp_path):
     cfg, _, _ = cli.parse_args(["--env", env_name, "--preset", "tiny"])
     out = tmp_path / "run"
     assert trainer.train(cfg, out, quiet=True) == 0
-    from d2c_jax import logging as logging_lib
+    from d2c_jax.training import logging as logging_lib
 
     rows = logging_lib.read_metrics(out / "metrics.jsonl")
     assert [r["iteration"] for r in rows] == [1, 2]
@@ -52,7 +53,7 @@ def test_quick_preset_moves_the_curriculum_away_from_the_start(env_name, total_s
     which is no nearer the desired outcomes in straight-line distance, so there the
     paper's metric only falls late in a run (benchmarks/RESULTS.md).
     """
-    from d2c_jax import logging as logging_lib
+    from d2c_jax.training import logging as logging_lib
 
     cfg, _, _ = cli.parse_args(
         ["--env", env_name, "--preset", "quick", "--total-steps", str(total_steps)]

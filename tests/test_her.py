@@ -7,8 +7,8 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from d2c_jax import her, replay
 from d2c_jax.config import HERConfig, ReplayConfig
+from d2c_jax.core import her, replay
 
 H = 5
 STORED_GOAL = -7.0  # never an achieved goal, so relabelled goals are recognisable

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 from scipy.optimize import linear_sum_assignment
 
-from d2c_jax import matching
+from d2c_jax.curricula import matching
 
 # (K, P) shapes from 1x1 to 64x256; 25 problems each, solved as one vmapped batch.
 SHAPES = [(1, 1), (1, 9), (3, 7), (8, 8), (20, 100), (17, 33), (64, 64), (64, 256)]

@@ -8,8 +8,8 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from d2c_jax import networks
 from d2c_jax.config import SACConfig
+from d2c_jax.core import networks
 
 
 class StubEnv:

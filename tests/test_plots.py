@@ -4,7 +4,7 @@ import matplotlib.pyplot as plt
 import numpy as np
 from matplotlib.patches import Circle, Rectangle
 
-from d2c_jax import plots
+from d2c_jax.viewing import plots
 from envs import layouts
 
 

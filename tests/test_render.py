@@ -3,7 +3,7 @@
 The drawing tests need an OpenGL backend: OSMesa on CPU (`apt-get install libosmesa6`,
 which .ci/run installs) or EGL. They take the `gl_backend` fixture (tests/conftest.py),
 which skips them, naming the backend and what is wrong, when none can render; importing
-`d2c_jax.render` needs no GL, so collection never fails for lack of one.
+`d2c_jax.viewing.render` needs no GL, so collection never fails for lack of one.
 """
 
 import os
@@ -17,7 +17,7 @@ import numpy as np
 import pytest
 
 import envs
-from d2c_jax import render
+from d2c_jax.viewing import render
 
 SIZE = dict(width=96, height=72)
 
@@ -121,7 +121,7 @@ def test_importing_the_package_sets_no_gl_backend():
     """No side effect at import: MUJOCO_GL stays unset, no GL library is loaded."""
     code = (
         "import os, sys\n"
-        "import d2c_jax, d2c_jax.render, d2c_jax.trainer, envs\n"
+        "import d2c_jax, d2c_jax.viewing.render, d2c_jax.training.agent, envs\n"
         "print(os.environ.get('MUJOCO_GL'))\n"
         "print(sorted(m for m in ('OpenGL', 'mujoco.osmesa', 'mujoco.egl') if m in sys.modules))\n"
     )
@@ -177,7 +177,7 @@ def test_gl_backend_available_reports_a_broken_backend_without_failing():
 
 def test_render_cli_without_a_run_exits_2(tmp_path):
     out = subprocess.run(
-        [sys.executable, "-m", "d2c_jax.render", str(tmp_path)],
+        [sys.executable, "-m", "d2c_jax.viewing.render", str(tmp_path)],
         capture_output=True,
         text=True,
         timeout=300,

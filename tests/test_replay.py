@@ -8,8 +8,8 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from d2c_jax import replay
 from d2c_jax.config import ReplayConfig
+from d2c_jax.core import replay
 
 H, OBS, ACT, GOAL = 3, 2, 1, 2
 

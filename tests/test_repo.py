@@ -28,7 +28,7 @@ def test_ci_runs_exactly_the_readme_test_command():
 def run_demo(out_dir, episodes: int) -> subprocess.CompletedProcess:
     args = ["--out", str(out_dir), "--episodes", str(episodes)]
     return subprocess.run(
-        [sys.executable, "-m", "d2c_jax.demo", *args],
+        [sys.executable, "-m", "d2c_jax.viewing.demo", *args],
         capture_output=True,
         text=True,
         cwd=ROOT,

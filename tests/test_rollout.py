@@ -4,7 +4,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from d2c_jax import rollout
+from d2c_jax.core import rollout
 
 
 def go_right(obs, goal, key):

@@ -13,8 +13,8 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from d2c_jax import her, networks, sac
 from d2c_jax.config import SACConfig
+from d2c_jax.core import networks, sac, types
 
 
 class ProbeEnv:
@@ -49,10 +49,10 @@ PROBE_CFG = SACConfig(
 CFG = SACConfig(hidden_sizes=(32, 32), batch_size=16)
 
 
-def random_batch(env, batch_size, key) -> her.Batch:
+def random_batch(env, batch_size, key) -> types.Batch:
     ks = jax.random.split(key, 5)
     b = batch_size
-    return her.Batch(
+    return types.Batch(
         obs=jax.random.normal(ks[0], (b, env.obs_dim)),
         action=jax.random.uniform(ks[1], (b, env.action_dim), minval=-1, maxval=1),
         reward=jax.random.bernoulli(ks[2], 0.3, (b,)).astype(jnp.float32),
@@ -76,13 +76,13 @@ class Probe(NamedTuple):
 PROBE_ACTIONS = jnp.linspace(-1.0, 1.0, 9)
 
 
-def probe_batch(p: Probe, key) -> her.Batch:
+def probe_batch(p: Probe, key) -> types.Batch:
     b = PROBE_CFG.batch_size
     first = jnp.arange(b) < p.first * b
     action = jax.random.uniform(key, (b, 1), minval=-1, maxval=1)
     obs = jnp.where(first, 0.0, 1.0)[:, None]
     reward = jnp.where(first, 0.0, p.c - p.k * (action[:, 0] - p.a_star) ** 2)
-    return her.Batch(obs, action, reward, obs + 1.0, jnp.zeros((b, 1)), first.astype(jnp.float32))
+    return types.Batch(obs, action, reward, obs + 1.0, jnp.zeros((b, 1)), first.astype(jnp.float32))
 
 
 @jax.jit

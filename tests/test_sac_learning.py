@@ -22,8 +22,8 @@ import jax  # noqa: E402
 import jax.numpy as jnp  # noqa: E402
 import pytest  # noqa: E402
 
-from d2c_jax import her, networks, replay, sac  # noqa: E402
 from d2c_jax.config import HERConfig, ReplayConfig, SACConfig  # noqa: E402
+from d2c_jax.core import her, networks, replay, sac  # noqa: E402
 
 EMPTY_ARENA = (
     "###########",
@@ -80,7 +80,7 @@ def _episode(env, policy, goal, key):
 
 def replay_episodes(obs, ag, action, goal):
     """A record with the fields `replay.insert_episodes` reads."""
-    from d2c_jax.rollout import Episodes
+    from d2c_jax.core.rollout import Episodes
 
     return Episodes(obs, ag, action, goal, jnp.zeros(action.shape[:-1], bool))
 

@@ -10,8 +10,10 @@ import sys
 import numpy as np
 import pytest
 
-from d2c_jax import cli, config, run_loop
-from d2c_jax import logging as logging_lib
+from d2c_jax import config
+from d2c_jax.training import cli
+from d2c_jax.training import logging as logging_lib
+from d2c_jax.training import loop as run_loop
 
 ROOT = pathlib.Path(__file__).resolve().parents[1]
 
@@ -35,7 +37,7 @@ def strip_time(rows: list[dict]) -> list[dict]:
 @pytest.fixture(scope="module")
 def tiny_run(tmp_path_factory):
     """Two tiny runs of the same seed (in process), and their metrics."""
-    from d2c_jax import trainer
+    from d2c_jax.training import agent as trainer
 
     out = []
     for name in ("a", "b"):
@@ -68,7 +70,7 @@ def test_same_seed_gives_identical_metrics(tiny_run):
 
 
 def test_resume_equals_uninterrupted(tiny_run, tmp_path):
-    from d2c_jax import trainer
+    from d2c_jax.training import agent as trainer
 
     path = tmp_path / "run"
     cfg, _, _ = cli.parse_args(["--env", "medium_maze", "--preset", "tiny", "--total-steps", "400"])
@@ -84,7 +86,7 @@ def test_resume_equals_uninterrupted(tiny_run, tmp_path):
 
 
 def test_two_seeds_give_per_seed_lists(tmp_path):
-    from d2c_jax import trainer
+    from d2c_jax.training import agent as trainer
 
     cfg, _, _ = cli.parse_args(["--env", "medium_maze", "--preset", "tiny", "--seeds", "2"])
     assert trainer.train(cfg, tmp_path / "run") == 0
@@ -154,7 +156,7 @@ def test_overrides_reach_the_config():
 
 
 def test_nan_stops_with_status_3_and_keeps_checkpoint(tmp_path):
-    from d2c_jax import trainer
+    from d2c_jax.training import agent as trainer
 
     # An absurd learning rate makes the critic overflow within the tiny run.
     cfg, _, _ = cli.parse_args(
@@ -179,7 +181,8 @@ def test_nan_stops_with_status_3_and_keeps_checkpoint(tmp_path):
 
 
 def test_schedule_matches_spec_hand_computed_counts():
-    from d2c_jax import config, trainer
+    from d2c_jax import config
+    from d2c_jax.training import agent as trainer
 
     # config.preset needs no env module, so this holds before envs/ant.py exists.
     ant = trainer.make_schedule(config.preset("ant", "paper"), horizon=300)
@@ -205,7 +208,8 @@ def test_held_goals_between_matchings_are_used_in_turn(medium_maze):
     metrics) and its envs take the next slots, K = 8 goals over 2 x 4 envs."""
     import jax
 
-    from d2c_jax import config, trainer
+    from d2c_jax import config
+    from d2c_jax.training import agent as trainer
 
     cfg = config.preset("medium_maze", "tiny")
     cfg = dataclasses.replace(
@@ -302,7 +306,7 @@ def test_ablations_run_one_iteration(override):
     import jax.numpy as jnp
 
     import envs
-    from d2c_jax import trainer
+    from d2c_jax.training import agent as trainer
 
     cfg, _, _ = cli.parse_args(["--env", "medium_maze", "--preset", "tiny", *override])
     env = envs.make(cfg.env)
@@ -326,7 +330,7 @@ def test_over_seeds_equals_vmap_with_and_without_a_size_one_axis():
     import jax
     import jax.numpy as jnp
 
-    from d2c_jax import trainer
+    from d2c_jax.training import agent as trainer
 
     def fn(tree, scale):
         return {"y": tree["a"] @ tree["b"] * scale, "n": tree["a"].sum()}

@@ -10,29 +10,15 @@ in the same way.
 
 from __future__ import annotations
 
-from typing import Callable, NamedTuple
-
 import jax
 import jax.numpy as jnp
 
-from d2c_jax import replay
 from d2c_jax.config import HERConfig
+from d2c_jax.core import replay
+from d2c_jax.core.types import Batch, RewardFn
+
 
 # reward_fn(ag_next (..., goal_dim), goal (..., goal_dim)) -> reward (...,)
-RewardFn = Callable[[jax.Array, jax.Array], jax.Array]
-
-
-class Batch(NamedTuple):
-    """A SAC training batch (raw obs and goals; SAC normalises them)."""
-
-    obs: jax.Array  # (B, obs_dim) s_t
-    action: jax.Array  # (B, action_dim) a_t
-    reward: jax.Array  # (B,) r = reward_fn(phi(s_{t+1}), goal)
-    next_obs: jax.Array  # (B, obs_dim) s_{t+1}
-    goal: jax.Array  # (B, goal_dim) the (possibly relabelled) goal
-    mask: jax.Array  # (B,) bootstrap mask: 0 at a true terminal, else 1
-
-
 def sparse_reward_fn(env) -> RewardFn:
     """The sparse reward r = 1[||ag_next - goal|| <= radius] (SPEC §4 ablation)."""
 

@@ -18,8 +18,8 @@ import jax
 import numpy as np
 from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn, TimeRemainingColumn
 
-from d2c_jax import checkpoint as checkpoint_lib
-from d2c_jax import logging as logging_lib
+from d2c_jax.training import checkpoint as checkpoint_lib
+from d2c_jax.training import logging as logging_lib
 
 
 class RunError(Exception):

@@ -14,9 +14,10 @@ from typing import Callable
 import jax
 import jax.numpy as jnp
 
-from d2c_jax import matching
-from d2c_jax.classifier import Classifier, Metrics, log_p_pseudo, p_pseudo
 from d2c_jax.config import CurriculumConfig
+from d2c_jax.core.types import Metrics
+from d2c_jax.curricula import matching
+from d2c_jax.curricula.classifier import Classifier, log_p_pseudo, p_pseudo
 from envs import GoalEnv, goal_distance
 
 # value_fn(goals (P, T', d)) -> (P, T') V(s0, g) = min_i Q_i(s0, pi(s0, g), g)

@@ -23,9 +23,10 @@ import numpy as np
 from flax import struct
 
 import envs
-from d2c_jax import classifier, curriculum, her, networks, replay, rollout, sac
 from d2c_jax import config as config_lib
-from d2c_jax.run_loop import RunError  # noqa: F401  (re-exported for the CLI)
+from d2c_jax.core import her, networks, replay, rollout, sac
+from d2c_jax.curricula import classifier, curriculum
+from d2c_jax.training.loop import RunError  # noqa: F401  (re-exported for the CLI)
 
 
 class Schedule(NamedTuple):
@@ -461,8 +462,8 @@ def _describe(cfg: config_lib.TrainConfig, sched: Schedule) -> str:
 
 
 def _write_plots(out: pathlib.Path, env: envs.GoalEnv) -> None:
-    from d2c_jax import logging as logging_lib
-    from d2c_jax import plots
+    from d2c_jax.training import logging as logging_lib
+    from d2c_jax.viewing import plots
 
     rows = logging_lib.read_metrics(out / "metrics.jsonl")
     plots.success_curve(rows, env.n_modes, out / "plots" / "success.png")
@@ -476,8 +477,8 @@ def train(cfg: config_lib.TrainConfig, out, resume: bool = False, quiet: bool = 
     Raises:
       RunError: bad run directory or checkpoint (status 2), non-finite values (status 3).
     """
-    from d2c_jax import logging as logging_lib
-    from d2c_jax import run_loop
+    from d2c_jax.training import logging as logging_lib
+    from d2c_jax.training import loop as run_loop
 
     out = pathlib.Path(out)
     env = envs.make(cfg.env)

@@ -16,7 +16,7 @@ the marginal term gets the third (`marginal_kl`).
 from __future__ import annotations
 
 import itertools
-from typing import Callable, NamedTuple
+from typing import NamedTuple
 
 import flax.linen as nn
 import jax
@@ -25,12 +25,10 @@ import optax
 from flax import struct
 
 from d2c_jax.config import ClassifierConfig
+from d2c_jax.core.types import Metrics, RewardFn
 from envs import GoalEnv
 
 _P_CLIP = 1e-6  # SPEC §3: probabilities clipped to [1e-6, 1 - 1e-6] in the MI estimator
-
-Metrics = dict[str, jax.Array]
-RewardFn = Callable[[jax.Array, jax.Array], jax.Array]
 
 
 class Classifier(nn.Module):

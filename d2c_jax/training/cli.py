@@ -18,7 +18,7 @@ import types
 import typing
 
 from d2c_jax import config as config_lib
-from d2c_jax import validation
+from d2c_jax.training import validation
 
 
 class UsageError(Exception):
@@ -188,7 +188,7 @@ def enable_compilation_cache() -> None:
 
 def main(argv: list[str] | None = None) -> int:
     """Entry point of train.py; returns the exit status."""
-    from d2c_jax import trainer
+    from d2c_jax.training import agent as trainer
 
     enable_compilation_cache()
     try:

@@ -26,11 +26,9 @@ import jax.numpy as jnp
 import optax
 from flax import struct
 
-from d2c_jax import networks
 from d2c_jax.config import SACConfig
-from d2c_jax.her import Batch
-
-Metrics = dict[str, jax.Array]
+from d2c_jax.core import networks
+from d2c_jax.core.types import Batch, Metrics
 
 
 @struct.dataclass

@@ -1,0 +1,24 @@
+"""Types shared across layers: metrics, reward functions and SAC batches."""
+
+from __future__ import annotations
+
+from typing import Callable, NamedTuple
+
+import jax
+
+# A flat dict of scalar metrics, keys like "sac/critic_loss" (ARCHITECTURE.md conventions).
+Metrics = dict[str, jax.Array]
+
+# reward_fn(next achieved goal (..., goal_dim), goal (..., goal_dim)) -> reward (...,).
+RewardFn = Callable[[jax.Array, jax.Array], jax.Array]
+
+
+class Batch(NamedTuple):
+    """A SAC training batch (raw obs and goals; SAC normalises them)."""
+
+    obs: jax.Array  # (B, obs_dim) s_t
+    action: jax.Array  # (B, action_dim) a_t
+    reward: jax.Array  # (B,) r = reward_fn(phi(s_{t+1}), goal)
+    next_obs: jax.Array  # (B, obs_dim) s_{t+1}
+    goal: jax.Array  # (B, goal_dim) the (possibly relabelled) goal
+    mask: jax.Array  # (B,) bootstrap mask: 0 at a true terminal, else 1
