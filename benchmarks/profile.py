@@ -6,7 +6,7 @@ For each env, the `quick` preset's iteration is split into the parts `train_iter
 is made of, each compiled alone and timed on a replay buffer filled by real iterations:
 
 - env steps: `num_envs` episodes of H steps with the actor, goals held (no goal choice);
-- goal choice: `trainer.collect_episodes` (post-success goals from the classifier, SPEC
+- goal choice: `Agent.collect_episodes` (post-success goals from the classifier, SPEC
   §6) minus the above;
 - SAC updates: the iteration's M updates with their HER batches and classifier rewards;
 - classifier updates: its Eq. 5 updates;
@@ -50,47 +50,38 @@ def best_seconds(fn, args, repeats: int) -> float:
 def filled_state(cfg: config.TrainConfig, env, iterations: int):
     """One seed's TrainState after `iterations` real iterations (warm-up first), so the
     buffer, classifier and curriculum hold real data; the seed axis is removed."""
-    comp = trainer.make_components(cfg, env)
-    ts = trainer.init_seed_states(cfg, comp)
-    step = trainer.make_train_step(cfg, env)
-    for i in range(iterations):
-        ts, _ = step(ts, jnp.asarray(i < comp.schedule.warmup_iterations))
-    return comp, jax.tree.map(lambda x: x[0], ts)
+    agent = trainer.Agent(cfg, env)
+    ts = agent.init_seeds()
+    step = trainer.jit_step(agent)
+    for _ in range(iterations):
+        ts, _ = step(ts)
+    return agent, jax.tree.map(lambda x: x[0], ts)
 
 
 def part_seconds(cfg: config.TrainConfig, env, repeats: int = 3) -> dict[str, float]:
     """Seconds per iteration of each part of the `cfg` iteration on `env` (one seed)."""
-    comp, ts = filled_state(cfg, env, iterations=3)
-    sched = comp.schedule
+    agent, ts = filled_state(cfg, env, iterations=3)
+    sched = agent.schedule
     key = jax.random.key(1)
-    goals = trainer.env_goals(cfg, comp, ts, ts.curriculum_goals)
-    collect = jax.jit(
-        lambda ts, key: trainer.collect_episodes(cfg, comp, ts, goals, jnp.asarray(False), key)
-    )
+    goals = agent.env_goals(ts, ts.curriculum_goals)
+    collect = jax.jit(lambda ts, key: agent.collect_episodes(ts, goals, jnp.asarray(False), key))
 
     def collect_held_goals(ts, key):
-        actor = sac.make_policy(comp.sac_nets, ts.sac, env, deterministic=False)
+        actor = agent.policy(ts.sac)
         keep_goal = lambda achieved, key: achieved  # noqa: E731  (a free "choice")
         switch_every = cfg.curriculum.post_success_switch_every
         return rollout.collect(env, actor, keep_goal, goals, cfg.num_envs, key, switch_every)
 
     n_blocks = sched.sac_updates // sac.block_size(cfg.sac)
-    sac_updates = jax.jit(
-        lambda ts, key: trainer.scan_updates(
-            lambda t, k: trainer.sac_block(cfg, comp, t, k), ts, n_blocks, key
-        )
-    )
+    sac_updates = jax.jit(lambda ts, key: trainer.scan_updates(agent.sac_block, ts, n_blocks, key))
     classifier_updates = jax.jit(
         lambda ts, key: trainer.scan_updates(
-            lambda t, k: trainer.classifier_update(cfg, comp, t, k),
-            ts,
-            sched.classifier_updates,
-            key,
+            agent.classifier_update, ts, sched.classifier_updates, key
         )
     )
     # A matching is due at iteration 0 of its cycle; it serves `rematch_every` iterations.
     due = ts.replace(iteration=jnp.zeros_like(ts.iteration))
-    matching = jax.jit(lambda ts, key: trainer.curriculum_goals(cfg, comp, ts, key))
+    matching = jax.jit(agent.curriculum_goals)
     held = best_seconds(jax.jit(collect_held_goals), (ts, key), repeats)
     parts = {
         "env steps": held,
@@ -124,10 +115,9 @@ def profile_row(env_name: str, preset: str = "quick") -> dict:
 def evaluation_seconds(cfg: config.TrainConfig, env, repeats: int = 3) -> float:
     """Seconds of one scheduled evaluation of a fresh policy (its cost does not depend
     on the weights: every episode runs the full horizon)."""
-    comp = trainer.make_components(cfg, env)
-    ts = trainer.init_seed_states(cfg, comp)
+    agent = trainer.Agent(cfg, env)
     keys = jax.random.split(jax.random.key(2), cfg.num_seeds)
-    return best_seconds(trainer.make_eval_step(cfg, env), (ts, keys), repeats)
+    return best_seconds(trainer.jit_evaluate(agent), (agent.init_seeds(), keys), repeats)
 
 
 def profile_table(rows: list[dict]) -> str:

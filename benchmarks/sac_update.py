@@ -128,27 +128,32 @@ def jax_update_rate(
     """
     env = envs.make("medium_maze")
     cfg = sac_config(size, actor_every)
-    nets = networks.make_networks(cfg, env)
-    state = sac.init_sac(cfg, nets, env, jax.random.key(0))
+    nets, opt, hp = networks.make_networks(cfg, env), sac.make_optimizers(), sac.hyperparams(cfg)
+    state = sac.init_sac(nets, opt, env, hp, jax.random.key(0))
     block = sac.block_size(cfg)
     batches = random_batch(env, cfg.batch_size, block)
     n_blocks = max(1, n_updates // block)
-    one_block = jax.jit(lambda s, k: sac.update_sac_block(cfg, nets, s, batches, env, k)[0])
-    cost = one_block.lower(state, jax.random.key(1)).compile().cost_analysis()
+
+    def update(state, hp, key):  # the hyperparameters traced, as in the trainer's state
+        return sac.update_sac_block(cfg, nets, opt, hp, state, batches, env, key)[0]
+
+    one_block = jax.jit(update)
+    cost = one_block.lower(state, hp, jax.random.key(1)).compile().cost_analysis()
     xla_flops = (cost[0] if isinstance(cost, list) else cost).get("flops", float("nan")) / block
     if not time_it:
         return float("nan"), xla_flops
 
-    def run(state, key):
+    def run(state, hp, key):
         def body(state, k):
-            return sac.update_sac_block(cfg, nets, state, batches, env, k)[0], None
+            return update(state, hp, k), None
 
         return jax.lax.scan(body, state, jax.random.split(key, n_blocks))[0]
 
-    compiled = jax.jit(run).lower(state, jax.random.key(1)).compile()
-    jax.block_until_ready(compiled(state, jax.random.key(1)))
+    compiled = jax.jit(run).lower(state, hp, jax.random.key(1)).compile()
+    jax.block_until_ready(compiled(state, hp, jax.random.key(1)))
     best = min(
-        _timed(lambda: jax.block_until_ready(compiled(state, jax.random.key(2)))) for _ in range(3)
+        _timed(lambda: jax.block_until_ready(compiled(state, hp, jax.random.key(2))))
+        for _ in range(3)
     )
     return n_blocks * block / best, xla_flops
 
@@ -160,8 +165,8 @@ def jax_update_parts(size: str = "paper", repeats: int = 15) -> list[tuple[str, 
     env = envs.make("medium_maze")
     cfg = sac_config(size, 1)
     hidden, batch = SIZES[size]
-    nets = networks.make_networks(cfg, env)
-    state = sac.init_sac(cfg, nets, env, jax.random.key(0))
+    nets, opt, hp = networks.make_networks(cfg, env), sac.make_optimizers(), sac.hyperparams(cfg)
+    state = sac.init_sac(nets, opt, env, hp, jax.random.key(0))
     b = jax.tree.map(lambda x: x[0], random_batch(env, batch, 1))
     feats, next_feats = sac._features(env, b)
     key = jax.random.key(1)
@@ -171,12 +176,12 @@ def jax_update_parts(size: str = "paper", repeats: int = 15) -> list[tuple[str, 
     total, critic_only = update_flops(hidden, batch, 1), update_flops(hidden, batch, 10**9)
     parts = {
         "critic step": (
-            lambda s: sac._critic_step(cfg, nets, s, feats, next_feats, b, key)[0],
+            lambda s: sac._critic_step(cfg, nets, opt, hp, s, feats, next_feats, b, key)[0],
             state,
             critic_only,
         ),
         "actor + alpha step": (
-            lambda s: sac._actor_step(cfg, nets, s, feats, env.action_dim, key),
+            lambda s: sac._actor_step(cfg, nets, opt, hp, s, feats, env.action_dim, key),
             state,
             total - critic_only,
         ),

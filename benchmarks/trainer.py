@@ -5,7 +5,7 @@
 
 prints the numbers; `python -m benchmarks.run` writes them into RESULTS.md.
 
-Every number is the steady state of `trainer.make_train_step`, the program `train.py`
+Every number is the steady state of `agent.jit_step`, the program `train.py`
 runs: compiled ahead of time, one untimed iteration, then the best of `repeats` timed
 iterations (the mean is within a few % of it on an idle machine).
 
@@ -78,23 +78,22 @@ def iteration_seconds(cfg: config.TrainConfig, repeats: int = 2) -> tuple[float,
     curriculum matches once per 2000 env steps), so an iteration's share of the matching
     is in the time; the best round over `repeats`, divided by its iterations.
     """
-    env = envs.make(cfg.env)
-    comp = trainer.make_components(cfg, env)
-    ts = trainer.init_seed_states(cfg, comp)
+    agent = trainer.Agent(cfg, envs.make(cfg.env))
+    ts = agent.init_seeds()
     start = time.perf_counter()
-    step = trainer.make_train_step(cfg, env).lower(ts, jnp.asarray(False)).compile()
+    step = trainer.jit_step(agent).lower(ts).compile()
     compile_s = time.perf_counter() - start
-    ts, _ = step(ts, jnp.asarray(False))
+    ts, _ = step(ts)  # the warm-up iteration (random actions; it also trains)
     jax.block_until_ready(ts)
-    cycle = comp.schedule.rematch_every
+    cycle = agent.schedule.rematch_every
     # Start the timed rounds at a matching iteration.
     while int(ts.iteration.reshape(-1)[0]) % cycle:
-        ts, _ = step(ts, jnp.asarray(False))
+        ts, _ = step(ts)
     best = float("inf")
     for _ in range(repeats):
         start = time.perf_counter()
         for _ in range(cycle):
-            ts, metrics = step(ts, jnp.asarray(False))
+            ts, metrics = step(ts)
         jax.block_until_ready((ts, metrics))
         best = min(best, (time.perf_counter() - start) / cycle)
     return best, compile_s
@@ -151,8 +150,8 @@ def curriculum_share(env_name: str = "medium_maze", repeats: int = 20) -> str:
     """
     cfg = config.preset(env_name, "quick")
     env = envs.make(env_name)
-    comp = trainer.make_components(cfg, env)
-    ts = trainer.init_train_state(cfg, comp, jax.random.key(0))
+    agent = trainer.Agent(cfg, env)
+    ts = agent.init(jax.random.key(0))
     cur = cfg.curriculum
     shape = (cur.pool_size, env.horizon + 1)
     pool = env.sample_uniform_goals(jax.random.key(1), shape[0] * shape[1])
@@ -162,8 +161,8 @@ def curriculum_share(env_name: str = "medium_maze", repeats: int = 20) -> str:
     @jax.jit
     def propose(key):
         return curriculum.propose(
-            cur, env, comp.classifier_net, ts.classifier.params, pool,
-            jnp.asarray(cur.pool_size), start, key, eps=cfg.classifier.eps,
+            cur, env, agent.classifier_net, ts.classifier.params, pool,
+            jnp.ones(cur.pool_size, bool), start, key, gamma=cfg.sac.gamma,
         )  # fmt: skip
 
     jax.block_until_ready(propose(jax.random.key(2)))
@@ -196,19 +195,19 @@ def memory_child(env_name: str) -> dict:
     env = envs.make(env_name)
     # One SAC block per iteration: the same buffers and per-update temporaries.
     cfg = dataclasses.replace(cfg, utd=sac.block_size(cfg.sac) / (cfg.num_envs * env.horizon))
-    comp = trainer.make_components(cfg, env)
-    ts = trainer.init_seed_states(cfg, comp)
+    agent = trainer.Agent(cfg, env)
+    ts = agent.init_seeds()
     jax.block_until_ready(ts)
     out = {
         "replay_gib": sum(x.nbytes for x in jax.tree.leaves(ts.replay)) / 2**30,
         "state_gib": sum(x.nbytes for x in jax.tree.leaves(ts)) / 2**30,
         "after_init_gib": peak_rss_gib(),
     }
-    compiled = trainer.make_train_step(cfg, env).lower(ts, jnp.asarray(True)).compile()
+    compiled = trainer.jit_step(agent).lower(ts).compile()
     out["after_compile_gib"] = peak_rss_gib()
     analysis = compiled.memory_analysis()
     out["xla_temp_gib"] = getattr(analysis, "temp_size_in_bytes", float("nan")) / 2**30
-    ts, metrics = compiled(ts, jnp.asarray(True))
+    ts, metrics = compiled(ts)
     jax.block_until_ready((ts, metrics))
     out["after_iteration_gib"] = peak_rss_gib()
     return out

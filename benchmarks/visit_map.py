@@ -119,15 +119,14 @@ def head_maps(net, params, grid: Grid, goal: np.ndarray) -> np.ndarray:
 
 def main(argv=None) -> int:
     from d2c_jax.curricula import classifier
-    from d2c_jax.training import agent as trainer
-    from d2c_jax.viewing import render
+    from d2c_jax.training import runs
 
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("run")
     parser.add_argument("--seed-index", type=int, default=0)
     parser.add_argument("--per-head", action="store_true", help="each head's map per mode")
     args = parser.parse_args(argv)
-    cfg, env, ts = render.load_run(args.run)
+    cfg, env, ts = runs.load_run(args.run)
     grid = env_grid(env)
     layout = grid.layout
     rp = jax.tree.map(lambda x: np.asarray(x[args.seed_index]), ts.replay)
@@ -135,7 +134,7 @@ def main(argv=None) -> int:
     phase = np.arange(ag.shape[1])[None] <= rp.walk_start[: int(rp.size), None]
     every = grid_counts(grid, ag.reshape(-1, ag.shape[-1]))
     curriculum_phase = grid_counts(grid, ag[phase])
-    net = trainer.make_components(cfg, env).classifier_net
+    net = classifier.make_classifier(cfg.classifier, env)
     params = jax.tree.map(lambda x: x[args.seed_index], ts.classifier.params)
     goal_points = np.asarray(env.goal_points)
     p = classifier.p_pseudo(net, params, grid.centres[:, None], goal_points[None])

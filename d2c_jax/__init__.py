@@ -1,13 +1,14 @@
 """d2c_jax: D2C outcome-directed curriculum RL end to end in JAX/MJX.
 
-The package has one subpackage per layer (`envs/`, the MJX environments, stays apart):
+The package has one subpackage per layer, each importing only the layers before it
+(`envs/`, the MJX environments, stays apart; docs/LAYOUT.md):
 
 - `core/`: the RL core: networks, SAC, the replay buffer, HER and the episode loop;
 - `curricula/`: how goals are chosen: D2C's classifier ensemble and curriculum, and the
   auction matching they share with other curricula;
-- `training/`: the agent (one jitted iteration), the host loop, checkpoints, logging,
-  the command line;
-- `viewing/`: plots, rendering, demo and loading trained runs.
+- `viewing/`: drawing: plots, rendering, the demo;
+- `training/`: the agent (one jitted iteration), the host loop, run directories (and
+  loading trained runs), checkpoints, logging, the command line.
 
 `config.py` holds the configuration every layer reads. The modules of the flat layout
 before issue 16 (`d2c_jax.trainer`, `d2c_jax.matching`, `d2c_jax.classifier`, ...) stay

@@ -7,8 +7,58 @@ Every field has a one-line docstring. Configs are never mutated: override with
 from __future__ import annotations
 
 import dataclasses
+import types
 import typing
-from typing import Literal
+from typing import Literal, Mapping
+
+
+@dataclasses.dataclass(frozen=True)
+class EnvSettings:
+    """One env's RL settings: its row of Table 3 and its schedule (SPEC §2, §8).
+
+    The env's own facts (phi, radius, the horizon H, goal points) stay in `envs/`.
+    """
+
+    n_heads: int
+    """Classifier heads N (Table 3 'heads')."""
+    diversity_weight: float
+    """Diversity weight lambda of Eq. 5 (Table 3 'lambda')."""
+    eps: float
+    """Table 3 'eps': the presets' classifier.eps (Eq. 5) and curriculum.goal_noise."""
+    classifier_every: int
+    """Env steps per classifier round (Table 3 'f every')."""
+    total_steps: int
+    """Env steps of a paper run (SPEC §2)."""
+    seed_steps: int
+    """Env steps of random actions at the start (SPEC §2)."""
+    post_success_range: float
+    """Post-success range r: half-width of the candidate noise (SPEC §6)."""
+
+
+# Table 3's rows (SPEC §8) with SPEC §2's schedules. The config classes' defaults below
+# are the mazes' row: TrainConfig() is medium_maze's paper preset.
+_MAZE = EnvSettings(n_heads=2, diversity_weight=1.0, eps=0.5, classifier_every=2000,
+                    total_steps=1_000_000, seed_steps=2000, post_success_range=2.5)  # fmt: skip
+_ANT = EnvSettings(n_heads=2, diversity_weight=2.0, eps=1.0, classifier_every=4500,
+                   total_steps=3_000_000, seed_steps=4000, post_success_range=2.5)  # fmt: skip
+_SAWYER = EnvSettings(n_heads=2, diversity_weight=1.0, eps=0.025, classifier_every=3000,
+                      total_steps=3_000_000, seed_steps=4000, post_success_range=0.1)  # fmt: skip
+# env id -> its settings, in the order of envs.ENV_NAMES (read-only).
+ENV_SETTINGS: Mapping[str, EnvSettings] = types.MappingProxyType({
+    "complex_maze": _MAZE, "medium_maze": _MAZE, "spiral_maze": _MAZE, "ant": _ANT,
+    "sawyer_push": _SAWYER, "sawyer_pick_place": _SAWYER,
+})  # fmt: skip
+
+
+def env_settings(env: str) -> EnvSettings:
+    """The settings of env `env`.
+
+    Raises:
+      ValueError: for an unknown env; the message lists the valid ids.
+    """
+    if env not in ENV_SETTINGS:
+        raise ValueError(f"unknown env {env!r}; valid ids: {', '.join(ENV_SETTINGS)}")
+    return ENV_SETTINGS[env]
 
 
 @dataclasses.dataclass(frozen=True)
@@ -67,7 +117,7 @@ class HERConfig:
 class ClassifierConfig:
     """The diversified conditional classifier ensemble (SPEC §3, Eq. 5)."""
 
-    n_heads: int = 2
+    n_heads: int = _MAZE.n_heads
     """Number of heads N on the shared trunk."""
     hidden_sizes: tuple[int, ...] = (256, 256, 256)
     """Widths of the shared trunk (ReLU)."""
@@ -75,7 +125,7 @@ class ClassifierConfig:
     """Adam learning rate."""
     batch_size: int = 512
     """Batch size of each of the three loss terms."""
-    diversity_weight: float = 1.0
+    diversity_weight: float = _MAZE.diversity_weight
     """lambda of Eq. 5 (0 = no diversification)."""
     marginal_weight: float = 0.0
     """mu: DivDis's marginal regulariser, weighted lambda * mu (0 = Eq. 5 alone, the default)."""
@@ -86,9 +136,9 @@ class ClassifierConfig:
     pairs; G > 1 pairs G points with each goal and takes the term per goal (rule 6)."""
     negatives: Literal["all", "curriculum_phase"] = "all"
     """Negatives from every stored state, or only from the curriculum phase (OUTPACE)."""
-    eps: float = 0.5
-    """Half-width c of the noise on desired goals (Eq. 5) and curriculum goals (Table 3)."""
-    update_every: int = 2000
+    eps: float = _MAZE.eps
+    """Half-width c of the noise on desired goals in Eq. 5's positives (Table 3 'eps')."""
+    update_every: int = _MAZE.classifier_every
     """Env steps per classifier round (Table 3 'f every')."""
     iters: int = 16
     """Classifier updates per round (Table 3 'f iters')."""
@@ -112,7 +162,7 @@ class CurriculumConfig:
     """'d2c' (Eq. 7), 'value' (+Value ablation), 'none' (goals from desired examples)."""
     post_success_candidates: int = 16
     """C: candidates scored when a goal is reached (SPEC §6)."""
-    post_success_range: float = 2.5
+    post_success_range: float = _MAZE.post_success_range
     """r: half-width of the candidate noise around the reached state (SPEC §6)."""
     post_success_rule: Literal["argmax", "outpace"] = "argmax"
     """'argmax' of the candidates' p (SPEC §6), or OUTPACE's thresholded softmax sample."""
@@ -136,8 +186,11 @@ class CurriculumConfig:
     rematch_every: int = 2000
     """Env steps between matchings (whole iterations; OUTPACE: every 20 episodes); the envs
     of the iterations in between take the next slots of the held goals in turn."""
+    goal_noise: float = _MAZE.eps
+    """Half-width c of the U[-c, c] noise added to the matched curriculum goals (SPEC §5's
+    eps; every preset: Table 3's eps, the classifier's `eps`)."""
     auction_max_iters: int = 100_000
-    """Iteration cap of the auction matcher."""
+    """Iteration cap of the auction matcher (also `matching.auction`'s default)."""
 
 
 # --- the whole run ---------------------------------------------------------------
@@ -155,20 +208,21 @@ class TrainConfig:
     """First seed S; vmapped seeds are S..S+num_seeds-1."""
     num_seeds: int = 1
     """Number of seeds trained together in one vmapped program."""
-    total_steps: int = 1_000_000
+    total_steps: int = _MAZE.total_steps
     """Env steps to train for (rounded up to whole iterations)."""
     num_envs: int = 20
     """Parallel episodes per iteration; E = num_envs * horizon env steps per iteration."""
     utd: float = 1.0
     """SAC updates per env step: M = round(E * utd) updates per iteration."""
-    seed_steps: int = 2000
+    seed_steps: int = _MAZE.seed_steps
     """Env steps of random actions at the start (whole iterations: ceil(seed_steps / E))."""
     eval_every: int = 10_000
     """Evaluate every ceil(eval_every / E) iterations (and once at the end)."""
     eval_episodes: int = 10
     """Evaluation episodes per mode."""
-    checkpoint_every: int = 25
-    """Save a checkpoint every this many iterations (and at the end, and on a signal)."""
+    checkpoint_every: int = 50_000
+    """Env steps between checkpoints: every ceil(checkpoint_every / E) iterations (and at
+    the end, and on a signal). Default: 25 paper iterations of medium_maze (20 x H 100)."""
     reward: Literal["intrinsic", "sparse"] = "intrinsic"
     """D2C's intrinsic reward p_pseudo(phi(s'); g), or the sparse ablation."""
     sac: SACConfig = dataclasses.field(default_factory=SACConfig)
@@ -187,52 +241,44 @@ class TrainConfig:
 
 PRESET_NAMES = ("paper", "quick", "tiny")
 
-# Per env: Table 3's classifier settings and the schedules of SPEC §2.
-# H (the env's horizon) is repeated here only to size the tiny preset.
-_MAZE = dict(
-    heads=2, lam=1.0, eps=0.5, f_every=2000, total=1_000_000, seed_steps=2000, r=2.5, H=100
-)
-_TABLE3 = {
-    "complex_maze": _MAZE,
-    "medium_maze": _MAZE,
-    "spiral_maze": _MAZE,
-    "ant": dict(
-        heads=2, lam=2.0, eps=1.0, f_every=4500, total=3_000_000, seed_steps=4000, r=2.5, H=300
-    ),
-    "sawyer_push": dict(
-        heads=2, lam=1.0, eps=0.025, f_every=3000, total=3_000_000, seed_steps=4000, r=0.1, H=200
-    ),
-    "sawyer_pick_place": dict(
-        heads=2, lam=1.0, eps=0.025, f_every=3000, total=3_000_000, seed_steps=4000, r=0.1, H=200
-    ),
-}
+
+def _iteration_steps(env: str, num_envs: int, iterations: int) -> int:
+    """Env steps of `iterations` iterations of `num_envs` episodes of env `env` (SPEC §2)."""
+    import envs  # here: config.py stays importable without jax (`train.py --help`)
+
+    return iterations * num_envs * envs.horizon(env)
 
 
 def paper_preset(env: str) -> TrainConfig:
     """SPEC/Tables 2-3 exactly: 3x512 SAC, batch 512, utd 1, num_envs = n_slots = 20."""
-    t = _TABLE3[env]
+    s = env_settings(env)
     return TrainConfig(
         env=env,
         preset="paper",
-        total_steps=t["total"],
-        seed_steps=t["seed_steps"],
+        total_steps=s.total_steps,
+        seed_steps=s.seed_steps,
+        checkpoint_every=_iteration_steps(env, TrainConfig.num_envs, 25),
         classifier=ClassifierConfig(
-            n_heads=t["heads"], diversity_weight=t["lam"], eps=t["eps"], update_every=t["f_every"]
+            n_heads=s.n_heads,
+            diversity_weight=s.diversity_weight,
+            eps=s.eps,
+            update_every=s.classifier_every,
         ),
-        curriculum=CurriculumConfig(post_success_range=t["r"]),
+        curriculum=CurriculumConfig(post_success_range=s.post_success_range, goal_noise=s.eps),
     )
 
 
 def quick_preset(env: str) -> TrainConfig:
     """Tuned to learn fast on a laptop CPU (see docs/DEVIATIONS.md, "quick preset")."""
     cfg = paper_preset(env)
+    num_envs = 20
     quick = dataclasses.replace(
         cfg,
         preset="quick",
-        num_envs=20,
+        num_envs=num_envs,
         utd=0.25,
         eval_every=10_000,
-        checkpoint_every=50,
+        checkpoint_every=_iteration_steps(env, num_envs, 50),
         sac=dataclasses.replace(cfg.sac, hidden_sizes=(256, 256), batch_size=256),
         replay=ReplayConfig(capacity=1_000_000),
         classifier=dataclasses.replace(cfg.classifier, hidden_sizes=(128, 128), batch_size=256),
@@ -298,17 +344,17 @@ _MIN_MOVE_PER_R = 0.2 / 2.5
 
 def tiny_preset(env: str) -> TrainConfig:
     """Seconds per run, for tests: tiny nets, few envs, 2 iterations."""
-    cfg = paper_preset(env)
+    cfg, num_envs = paper_preset(env), 4
     return dataclasses.replace(
         cfg,
         preset="tiny",
-        total_steps=2 * 4 * _TABLE3[env]["H"],  # 2 iterations of num_envs * horizon
-        num_envs=4,
+        total_steps=_iteration_steps(env, num_envs, 2),
+        num_envs=num_envs,
         utd=0.02,
         seed_steps=1,
         eval_every=1,
         eval_episodes=2,
-        checkpoint_every=1,
+        checkpoint_every=_iteration_steps(env, num_envs, 1),
         sac=dataclasses.replace(cfg.sac, hidden_sizes=(32, 32), batch_size=32),
         replay=ReplayConfig(capacity=20_000),
         classifier=dataclasses.replace(
@@ -324,8 +370,7 @@ def preset(env: str, name: str) -> TrainConfig:
     Raises:
       ValueError: for an unknown preset or env.
     """
-    if env not in _TABLE3:
-        raise ValueError(f"unknown env {env!r}; valid ids: {', '.join(_TABLE3)}")
+    env_settings(env)  # raises for an unknown env, before an unknown preset
     builders = {"paper": paper_preset, "quick": quick_preset, "tiny": tiny_preset}
     if name not in builders:
         raise ValueError(f"unknown preset {name!r}; valid presets: {', '.join(PRESET_NAMES)}")
@@ -333,7 +378,13 @@ def preset(env: str, name: str) -> TrainConfig:
 
 
 def from_dict(cls, values: dict):
-    """A (nested, frozen) config dataclass from its config.json dict; lists become tuples."""
+    """A (nested, frozen) config dataclass from its config.json dict; lists become tuples.
+
+    Missing fields take their defaults; a TrainConfig dict from before
+    `curriculum.goal_noise` existed is first read as that run ran (`_upgrade`).
+    """
+    if cls is TrainConfig:
+        values = _upgrade(values)
     hints = typing.get_type_hints(cls)
     kwargs = {}
     for field in dataclasses.fields(cls):
@@ -346,3 +397,20 @@ def from_dict(cls, values: dict):
             value = tuple(value)
         kwargs[field.name] = value
     return cls(**kwargs)
+
+
+def _upgrade(values: dict) -> dict:
+    """A TrainConfig dict in today's terms. One without `curriculum.goal_noise` was
+    written before that field existed, when the curriculum goals were noised by
+    `classifier.eps` and `checkpoint_every` counted iterations, not env steps."""
+    curriculum = values.get("curriculum", {})
+    if "goal_noise" in curriculum:
+        return values
+    values = dict(values)
+    if "eps" in values.get("classifier", {}):
+        values["curriculum"] = {**curriculum, "goal_noise": values["classifier"]["eps"]}
+    env = values.get("env", TrainConfig.env)
+    if "checkpoint_every" in values and env in ENV_SETTINGS:
+        num_envs = values.get("num_envs", TrainConfig.num_envs)
+        values["checkpoint_every"] = _iteration_steps(env, num_envs, values["checkpoint_every"])
+    return values

@@ -3,8 +3,8 @@
 
 import sys
 
+from d2c_jax.training.runs import plots_main as main
 from d2c_jax.viewing.plots import *  # noqa: F403  (the pre-issue-16 import path)
-from d2c_jax.viewing.plots import main
 
 if __name__ == "__main__":
     sys.exit(main())

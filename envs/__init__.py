@@ -32,8 +32,8 @@ ENV_NAMES: tuple[str, ...] = tuple(
 )
 
 
-def make(name: str, **overrides) -> GoalEnv:
-    """Builds environment `name`; keyword `overrides` go to its constructor.
+def _env_class(name: str) -> tuple[type[GoalEnv], dict]:
+    """The class of environment `name` and its constructor kwargs (nothing is built).
 
     Raises:
       ValueError: for an unknown id; the message lists the valid ids.
@@ -41,8 +41,27 @@ def make(name: str, **overrides) -> GoalEnv:
     if name not in ENV_NAMES:
         raise ValueError(f"unknown env {name!r}; valid ids: {', '.join(ENV_NAMES)}")
     module, cls_name, kwargs = _REGISTRY[name]
-    cls = getattr(importlib.import_module(module), cls_name)
+    return getattr(importlib.import_module(module), cls_name), kwargs
+
+
+def make(name: str, **overrides) -> GoalEnv:
+    """Builds environment `name`; keyword `overrides` go to its constructor.
+
+    Raises:
+      ValueError: for an unknown id; the message lists the valid ids.
+    """
+    cls, kwargs = _env_class(name)
     return cls(**{**kwargs, **overrides})
 
 
-__all__ = ["ENV_NAMES", "EnvState", "GoalEnv", "goal_distance", "make"]
+def horizon(name: str) -> int:
+    """Episode length H of environment `name` in env steps (`env.horizon`), read from its
+    class: no MJX model is built.
+
+    Raises:
+      ValueError: for an unknown id; the message lists the valid ids.
+    """
+    return _env_class(name)[0].horizon
+
+
+__all__ = ["ENV_NAMES", "EnvState", "GoalEnv", "goal_distance", "horizon", "make"]

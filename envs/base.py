@@ -26,14 +26,14 @@ class EnvState:
     achieved_goal: jax.Array  # (goal_dim,) float32, phi(s)
     goal: jax.Array  # (goal_dim,) float32, the goal the agent is conditioned on
     success: jax.Array  # () bool, ||achieved_goal - goal|| <= success_radius
-    key: jax.Array  # () PRNG key, for envs with stochastic dynamics
 
 
 class GoalEnv(abc.ABC):
     """Base class: goal interface, success rule and the reset/set_goal plumbing.
 
-    Subclasses set the attributes below in `__init__` and implement `_reset_data`,
-    `_step_data`, `_observe` and `_achieved_goal`.
+    Subclasses set the attributes below in `__init__` (`horizon` as a class constant, so
+    that `envs.horizon(name)` reads it without building a model) and implement
+    `_reset_data`, `_step_data`, `_observe` and `_achieved_goal`.
 
     Attributes:
       obs_dim, action_dim, goal_dim: sizes of obs, action and goal vectors.
@@ -111,8 +111,8 @@ class GoalEnv(abc.ABC):
 
     def reset_with_goal(self, key: jax.Array, goal: jax.Array) -> EnvState:
         """Resets (with reset noise) and conditions the episode on `goal` (goal_dim,)."""
-        key_data, key_state = jax.random.split(key)
-        data = self._reset_data(key_data)
+        # The first of two keys: the reset streams of every recorded run stay the same.
+        data = self._reset_data(jax.random.split(key)[0])
         achieved = self._achieved_goal(data)
         goal = jnp.asarray(goal, jnp.float32)
         return EnvState(
@@ -121,7 +121,6 @@ class GoalEnv(abc.ABC):
             achieved_goal=achieved,
             goal=goal,
             success=self.is_success(achieved, goal),
-            key=key_state,
         )
 
     def step(self, state: EnvState, action: jax.Array) -> EnvState:

@@ -175,7 +175,7 @@ class PointMaze(GoalEnv):
     obs_dim = 6
     action_dim = 2
     goal_dim = 2
-    horizon = 100
+    horizon = 100  # a class constant: envs.horizon(name) reads it without building the env
     success_radius = 0.5
 
     def __init__(

@@ -59,9 +59,9 @@ def test_profile_table_shares_add_up_by_hand():
     evaluation's share is also over the train step's whole."""
     from benchmarks import profile
     from d2c_jax import config
-    from d2c_jax.training import agent as trainer
+    from d2c_jax.training import agent as agent_lib
 
-    sched = trainer.make_schedule(config.preset("medium_maze", "quick"), horizon=100)
+    sched = agent_lib.make_schedule(config.preset("medium_maze", "quick"), horizon=100)
     parts = {"env steps": 0.5, "SAC updates": 1.0}
     row = {"env": "m", "parts": parts, "whole": 2.0, "other": 0.5, "evaluation": 0.4}
     row["env_steps_per_s"] = 1000.0

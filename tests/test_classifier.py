@@ -1,6 +1,5 @@
 """Tests of the classifier ensemble and Eq. 5 (d2c_jax/classifier.py)."""
 
-import dataclasses
 import math
 
 import jax
@@ -31,9 +30,12 @@ class BoxEnv:
 UNIT = BoxEnv([-1.0, -1.0], [1.0, 1.0])
 
 
-def _init(cfg, net, seed=0):
+OPT = clf.make_optimizer()
+
+
+def _init(net, seed=0):
     """Jitted `init_classifier` (one compile instead of many eager ops)."""
-    return jax.jit(clf.init_classifier, static_argnums=(0, 1, 2))(cfg, net, 2, jax.random.key(seed))
+    return jax.jit(clf.init_classifier, static_argnums=(0, 1, 2))(net, OPT, 2, jax.random.key(seed))
 
 
 # --- the MI estimator ----------------------------------------------------------------
@@ -120,7 +122,7 @@ def test_classifier_normalises_inputs_with_goal_bounds():
 def test_p_pseudo_is_mean_of_heads_and_broadcasts_goal():
     cfg = ClassifierConfig(n_heads=3, hidden_sizes=(8,))
     net = clf.make_classifier(cfg, UNIT)
-    state = _init(cfg, net)
+    state = _init(net)
     x = np.random.default_rng(1).uniform(-1.0, 1.0, (4, 5, 2)).astype(np.float32)
     g = jnp.array([0.5, -0.5])
     heads, p = jax.jit(lambda q: (jax.nn.sigmoid(net.apply(q, x, g)), clf.p_pseudo(net, q, x, g)))(
@@ -134,7 +136,7 @@ def test_p_pseudo_is_mean_of_heads_and_broadcasts_goal():
 def test_reward_fn_equals_p_pseudo_and_stops_gradients():
     cfg = ClassifierConfig(n_heads=2, hidden_sizes=(8,))
     net = clf.make_classifier(cfg, UNIT)
-    params = _init(cfg, net).params
+    params = _init(net).params
     ag, g = np.random.default_rng(1).uniform(-1.0, 1.0, (2, 7, 2)).astype(np.float32)
     reward, p = jax.jit(lambda q: (clf.make_reward_fn(net, q)(ag, g), clf.p_pseudo(net, q, ag, g)))(
         params
@@ -151,10 +153,11 @@ def test_loss_matches_hand_written_eq5():
     cfg = ClassifierConfig(n_heads=3, hidden_sizes=(8,), diversity_weight=0.7, marginal_weight=0.3)
     net = clf.make_classifier(cfg, UNIT)
     # Larger weights make the heads confident, so the MI term is far from zero.
-    params = jax.tree.map(lambda w: 4.0 * w, _init(cfg, net).params)
+    params = jax.tree.map(lambda w: 4.0 * w, _init(net).params)
     rows = np.random.default_rng(1).uniform(-1.0, 1.0, (4, 6, 2)).astype(np.float32)
     batch = clf.ClassifierBatch(*rows, uniform_goals=rows[3])
-    total, m = jax.jit(lambda p: clf.loss(cfg, net, p, batch))(params)
+    hp = clf.hyperparams(cfg)
+    total, m = jax.jit(lambda p: clf.loss(cfg, net, hp, p, batch))(params)
 
     def bce(logits, label):  # -log sigmoid(+-z) in float64, mean over batch, sum over heads
         z = np.asarray(logits, np.float64)
@@ -185,11 +188,12 @@ def test_loss_matches_hand_written_eq5():
 def test_update_classifier_steps_adam():
     cfg = ClassifierConfig(n_heads=2, hidden_sizes=(8,), lr=1e-2)
     net = clf.make_classifier(cfg, UNIT)
-    state = _init(cfg, net)
+    state, hp = _init(net), clf.hyperparams(cfg)
     sample = jax.jit(clf.sample_batch, static_argnums=(0, 1))
-    batch = sample(cfg, UNIT, jnp.zeros((16, 2)), jnp.zeros((1, 4, 2)), jax.random.key(1))
-    new, metrics = jax.jit(lambda s, b: clf.update_classifier(cfg, net, s, b))(state, batch)
-    assert int(new.step) == 1
+    batch = sample(cfg, UNIT, hp, jnp.zeros((16, 2)), jnp.zeros((1, 4, 2)), jax.random.key(1))
+    new, metrics = jax.jit(lambda s, b: clf.update_classifier(cfg, net, OPT, hp, s, b))(
+        state, batch
+    )
     assert set(metrics) == {
         "classifier/loss",
         "classifier/bce_neg",
@@ -199,12 +203,14 @@ def test_update_classifier_steps_adam():
     }
 
     @jax.jit
-    def by_hand(params, opt_state):
-        grads = jax.grad(lambda p: clf.loss(cfg, net, p, batch)[0])(params)
-        updates, _ = optax.adam(1e-2).update(grads, opt_state, params)
+    def by_hand(params):
+        grads = jax.grad(lambda p: clf.loss(cfg, net, hp, p, batch)[0])(params)
+        updates, _ = optax.adam(1e-2).update(grads, optax.adam(1e-2).init(params), params)
         return optax.apply_updates(params, updates)
 
-    expected = by_hand(state.params, state.opt_state)
+    # optax.adam(lr) is the optimiser's Adam scaling, then -lr from the hyperparameters
+    # (equal up to the float rounding of two separately compiled programs).
+    expected = by_hand(state.params)
     for a, b in zip(jax.tree.leaves(new.params), jax.tree.leaves(expected), strict=True):
         np.testing.assert_allclose(a, b, atol=1e-6)
 
@@ -223,7 +229,7 @@ def test_conditioning_goals_and_positives():
     assert g.shape == (9, 2)
     assert np.all(np.isin(np.asarray(g[:4, 0]), np.arange(10.0)))  # n // 2 from the buffer
     np.testing.assert_array_equal(g[4:], -7.0)  # the rest from the desired examples
-    pos = jax.jit(clf.positive_examples, static_argnums=(0, 1))(cfg, env, uniform, key)
+    pos = jax.jit(clf.positive_examples, static_argnums=0)(env, uniform, cfg.eps, key)
     offset = np.asarray(pos - uniform)
     assert np.abs(offset[:, 0]).max() <= 0.5 and np.abs(offset[:, 0]).max() > 0.45
     np.testing.assert_array_equal(offset[:, 1], 0.0)  # masked coordinate: no noise
@@ -254,24 +260,26 @@ def _train_synthetic(lams, uniform_dg=False, steps=300, batch=256, seed=0, mus=N
     cond = jnp.broadcast_to(_DESIRED, (batch, 2))
 
     def train(lam, mu, key):
-        lam_cfg = dataclasses.replace(cfg, diversity_weight=lam, marginal_weight=mu)  # traced
+        hp = clf.hyperparams(cfg).replace(diversity_weight=lam, marginal_weight=mu)  # traced
 
         def body(state, key):
             k_neg, k_pos, k_uni = jax.random.split(key, 3)
             if uniform_dg:
-                b = clf.sample_batch(cfg, UNIT, _disk(k_neg, batch), _DESIRED[None, None], k_pos)
-                return clf.update_classifier(lam_cfg, net, state, b)
+                b = clf.sample_batch(
+                    cfg, UNIT, hp, _disk(k_neg, batch), _DESIRED[None, None], k_pos
+                )
+                return clf.update_classifier(cfg, net, OPT, hp, state, b)
             b = clf.ClassifierBatch(
                 negatives=_disk(k_neg, batch),
-                positives=clf.positive_examples(cfg, UNIT, cond, k_pos),
+                positives=clf.positive_examples(UNIT, cond, hp.eps, k_pos),
                 uniform=UNIT.sample_uniform_goals(k_uni, batch),
                 cond_goals=cond,
                 uniform_goals=cond,
             )
-            return clf.update_classifier(lam_cfg, net, state, b)
+            return clf.update_classifier(cfg, net, OPT, hp, state, b)
 
         k_init, k_steps = jax.random.split(key)
-        state = clf.init_classifier(cfg, net, 2, k_init)
+        state = clf.init_classifier(net, OPT, 2, k_init)
         return jax.lax.scan(body, state, jax.random.split(k_steps, steps))[0].params
 
     run = jax.jit(jax.vmap(train, in_axes=(0, 0, None)))

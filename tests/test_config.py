@@ -7,6 +7,7 @@ boundary pass.
 """
 
 import dataclasses
+import json
 import math
 import os
 import pathlib
@@ -18,8 +19,7 @@ import pytest
 
 import envs
 from d2c_jax import config
-from d2c_jax.training import cli, validation
-from d2c_jax.training import loop as run_loop
+from d2c_jax.training import cli, runs, validation
 
 ROOT = pathlib.Path(__file__).resolve().parents[1]
 
@@ -125,7 +125,75 @@ PATHS = sorted(validation.field_ranges())  # raises TypeError (collection fails)
 @pytest.mark.parametrize("env", envs.ENV_NAMES)
 def test_every_preset_validates(env, name):
     assert validation.validate(config.preset(env, name)) is None
-    assert config._TABLE3[env]["H"] == envs.make(env).horizon  # used by the capacity check
+
+
+# Table 3 by hand: (heads, lambda, eps, f every, total steps, seed steps, r) and H.
+_MAZE = (2, 1.0, 0.5, 2000, 1_000_000, 2000, 2.5)
+_SAWYER = (2, 1.0, 0.025, 3000, 3_000_000, 4000, 0.1)
+TABLE3 = {
+    "complex_maze": _MAZE,
+    "medium_maze": _MAZE,
+    "spiral_maze": _MAZE,
+    "ant": (2, 2.0, 1.0, 4500, 3_000_000, 4000, 2.5),
+    "sawyer_push": _SAWYER,
+    "sawyer_pick_place": _SAWYER,
+}
+HORIZON = {"complex_maze": 100, "medium_maze": 100, "spiral_maze": 100, "ant": 300,
+           "sawyer_push": 200, "sawyer_pick_place": 200}  # fmt: skip
+# Iterations between checkpoints per preset, as before checkpoint_every was in env steps
+# (paper 25, quick 50, tiny 1), times num_envs (20, 20, 4) times H.
+CHECKPOINT_ITERATIONS = {"paper": 25, "quick": 50, "tiny": 1}
+CHECKPOINT_EVERY = {
+    "paper": {100: 50_000, 300: 150_000, 200: 100_000},
+    "quick": {100: 100_000, 300: 300_000, 200: 200_000},
+    "tiny": {100: 400, 300: 1200, 200: 800},
+}
+
+
+@pytest.mark.parametrize("env", envs.ENV_NAMES)
+def test_presets_follow_table_3_and_the_env_s_horizon(env):
+    """Table 3's settings per env; the horizon read from the env class is the built env's;
+    the tiny preset runs 2 iterations of 4 episodes; every preset checkpoints after as many
+    iterations as it did when checkpoint_every counted iterations; the curriculum's goal
+    noise is Table 3's eps (the classifier's) in every preset."""
+    horizon = envs.make(env).horizon
+    assert envs.horizon(env) == horizon == HORIZON[env]
+    s = config.env_settings(env)
+    fields = ("n_heads", "diversity_weight", "eps", "classifier_every", "total_steps",
+              "seed_steps", "post_success_range")  # fmt: skip
+    assert tuple(getattr(s, f) for f in fields) == TABLE3[env]
+    assert config.preset(env, "tiny").total_steps == 2 * 4 * horizon
+    for name in config.PRESET_NAMES:
+        cfg = config.preset(env, name)
+        assert cfg.checkpoint_every == CHECKPOINT_EVERY[name][horizon], name
+        iterations = math.ceil(cfg.checkpoint_every / (cfg.num_envs * horizon))
+        assert iterations == CHECKPOINT_ITERATIONS[name], name
+        assert cfg.curriculum.goal_noise == cfg.classifier.eps == TABLE3[env][2], name
+
+
+def test_defaults_are_medium_maze_s_paper_preset_and_unknown_env_raises():
+    assert config.TrainConfig() == config.preset("medium_maze", "paper")
+    with pytest.raises(ValueError, match="unknown env 'nope'; valid ids: complex_maze"):
+        config.env_settings("nope")
+    with pytest.raises(ValueError, match="unknown env 'nope'"):
+        envs.horizon("nope")
+    with pytest.raises(ValueError, match="unknown env 'nope'"):
+        config.preset("nope", "tiny")
+
+
+@pytest.mark.parametrize("env", ["ant", "sawyer_push"])
+@pytest.mark.parametrize("name", config.PRESET_NAMES)
+def test_old_config_json_loads_as_its_run_ran(env, name):
+    """A config.json from before curriculum.goal_noise (checkpoint_every in iterations,
+    the curriculum noised by classifier.eps) loads as today's config of the same run;
+    today's round-trips unchanged."""
+    cfg = config.preset(env, name)
+    new = json.loads(json.dumps(dataclasses.asdict(cfg)))
+    assert config.from_dict(config.TrainConfig, new) == cfg
+    old = json.loads(json.dumps(dataclasses.asdict(cfg)))
+    del old["curriculum"]["goal_noise"]
+    old["checkpoint_every"] = CHECKPOINT_ITERATIONS[name]
+    assert config.from_dict(config.TrainConfig, old) == cfg
 
 
 def test_every_leaf_field_has_a_range_and_exceptions_name_fields():
@@ -185,7 +253,10 @@ def test_cross_field_constraints():
         "--seeds": dataclasses.replace(BASE, seed=2**32 - 1, num_seeds=2),
         "--replay.capacity": replace_at(BASE, "replay.capacity", 99),  # < one 100-step episode
         "--classifier.marginal-group": replace_at(BASE, "classifier.marginal_group", 10**6),
+        # The tiny buffer (20,000 steps of 100) holds 200 episodes; the archive draws from them.
+        "--curriculum.archive-size": replace_at(BASE, "curriculum.archive_size", 201),
     }
+    assert validation.validate(replace_at(BASE, "curriculum.archive_size", 200)) is None
     for name, cfg in bad.items():
         message = validation.validate(cfg)
         assert message is not None and message.startswith(f"{name} must be "), message
@@ -205,8 +276,8 @@ def test_unusable_run_dir_is_run_error_2(where, tmp_path):
     afile = tmp_path / "afile"
     afile.write_text("")
     out = {"under_a_file": afile / "run", "a_file": afile, "proc": pathlib.Path("/proc/no/run")}
-    with pytest.raises(run_loop.RunError) as err:
-        run_loop.prepare_run_dir(out[where], BASE, resume=False)
+    with pytest.raises(runs.RunError) as err:
+        runs.prepare_run_dir(out[where], BASE, resume=False)
     assert err.value.status == 2
     assert str(err.value).startswith(f"--out {out[where]}: ") and "\n" not in str(err.value)
 
@@ -287,7 +358,7 @@ def test_quick_preset_adds_exploration_everywhere_but_medium_maze():
             preset="quick",
             utd=0.25,
             eval_every=10_000,
-            checkpoint_every=50,
+            checkpoint_every=50 * 20 * envs.horizon(env),
             sac=dataclasses.replace(paper.sac, hidden_sizes=(256, 256), batch_size=256),
             replay=config.ReplayConfig(capacity=1_000_000),
             classifier=dataclasses.replace(
@@ -311,3 +382,10 @@ def test_exploration_min_move_is_outpace_s_on_the_mazes_and_scaled_by_r_elsewher
         want = 0.2 if env not in ("sawyer_push", "sawyer_pick_place") else 0.008
         assert cfg.curriculum.pool_min_move == pytest.approx(want), env
     assert config.preset("complex_maze", "quick").curriculum.pool_min_move == 0.2  # exactly
+
+
+def test_cli_sets_the_goal_noise_and_the_checkpoint_cadence_in_env_steps():
+    argv = ["--env", "ant", "--preset", "tiny", "--curriculum.goal-noise", "0.25"]
+    cfg, _, _ = cli.parse_args(argv + ["--checkpoint-every", "2400"])
+    assert cfg.curriculum.goal_noise == 0.25 and cfg.classifier.eps == 1.0
+    assert cfg.checkpoint_every == 2400  # 2 iterations of 4 Ant episodes of 300 steps

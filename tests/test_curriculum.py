@@ -1,6 +1,7 @@
 """Tests of the matching curriculum (d2c_jax/curriculum.py)."""
 
 import dataclasses
+import inspect
 
 import flax.linen as nn
 import jax
@@ -58,16 +59,31 @@ def _lines(ends, horizon=11):
 # Pool: 1 ends next to mode 0, 3 next to mode 1, 4 and 5 nearer the modes than 0 and 2.
 ENDS = [[-5.0, 3.0], [15.9, 16.1], [3.0, -4.0], [-15.8, -16.0], [14.0, 14.5], [-13.0, -14.0]]
 POOL = _lines(ENDS)
-CFG = CurriculumConfig(n_slots=4, pool_size=6, cost_stride=4)
 EPS = 0.5  # curriculum goal noise half-width
+CFG = CurriculumConfig(n_slots=4, pool_size=6, cost_stride=4, goal_noise=EPS)
+GAMMA = 0.99  # the SAC discount, for the value terms
+
+
+def filled(pool: jax.Array, count) -> jax.Array:
+    """(P,) bool validity of a pool whose first `count` entries hold episodes."""
+    return jnp.arange(pool.shape[0]) < count
 
 
 def _propose(cfg, env, net, params, value_fn=None):
-    """Jitted `propose` with the pool and its validity traced."""
+    """Jitted `propose` with the pool and the number of its episodes traced."""
     return jax.jit(
-        lambda pool, valid, start, key: cur.propose(
-            cfg, env, net, params, pool, valid, start, key, value_fn=value_fn, eps=EPS
-        )
+        lambda pool, count, start, key: cur.propose(
+            cfg,
+            env,
+            net,
+            params,
+            pool,
+            filled(pool, count),
+            start,
+            key,
+            value_fn=value_fn,
+            gamma=GAMMA,
+        )  # fmt: skip
     )
 
 
@@ -103,7 +119,8 @@ def test_subsample_keeps_every_stride_and_the_final_step():
 def test_cost_matrix_matches_brute_force():
     ccfg = ClassifierConfig(n_heads=2, hidden_sizes=(16, 16))
     net = clf.make_classifier(ccfg, ENV)
-    params = jax.jit(clf.init_classifier, static_argnums=(0, 1, 2))(ccfg, net, 2, jax.random.key(0))
+    init = jax.jit(clf.init_classifier, static_argnums=(0, 1, 2))
+    params = init(net, clf.make_optimizer(), 2, jax.random.key(0))
     params = jax.tree.map(lambda w: 3.0 * w, params.params)  # sharper, more varied p
     slots = jnp.array([[16.0, 16.0], [-10.0, 5.0], [2.0, -3.0]])
     pool = jax.random.uniform(jax.random.key(1), (4, 7, 2), minval=-18.0, maxval=18.0)
@@ -176,14 +193,22 @@ def test_goal_value_breaks_ties_between_equally_novel_candidates():
     cfg = dataclasses.replace(CFG, n_slots=2, goal_value_weight=1.0)
     goals, _ = jax.jit(
         lambda: cur.propose(
-            cfg, ENV, FlatNet(), NO_PARAMS, POOL, 6, jnp.zeros(2), jax.random.key(0),
-            eps=EPS, pool_obs=pool_obs, goal_value_fn=goal_value_fn,
+            cfg, ENV, FlatNet(), NO_PARAMS, POOL, filled(POOL, 6), jnp.zeros(2),
+            jax.random.key(0), gamma=GAMMA, pool_obs=pool_obs, goal_value_fn=goal_value_fn,
         )
     )()  # fmt: skip
     assert np.linalg.norm(goals - ENV.goal_points, axis=-1).max() < 1.5
     with pytest.raises(ValueError, match="goal_value_weight"):
         cur.propose(
-            cfg, ENV, FlatNet(), NO_PARAMS, POOL, 6, jnp.zeros(2), jax.random.key(0), eps=EPS
+            cfg,
+            ENV,
+            FlatNet(),
+            NO_PARAMS,
+            POOL,
+            filled(POOL, 6),
+            jnp.zeros(2),
+            jax.random.key(0),
+            gamma=GAMMA,
         )
 
 
@@ -208,6 +233,22 @@ def test_trajectory_ending_at_a_mode_is_matched_to_it():
     assert float(m["curriculum/slot_distance"]) == pytest.approx(to_mode, abs=1.0)
     # The paper's distance matches the two sets optimally: never above the slot pairing.
     assert float(m["curriculum/distance"]) <= float(m["curriculum/slot_distance"]) + 1e-5
+
+
+def test_goal_noise_is_the_curriculum_config_s():
+    """Goal j = its matched candidate (a subsampled pool state) + U[-c, c] noise with
+    c = cfg.goal_noise: c = 0 gives the candidates exactly; propose takes no noise
+    argument, and the discount has no default of its own (it is SACConfig.gamma)."""
+    states = np.asarray(cur.subsample(POOL, CFG.cost_stride)).reshape(-1, 2)
+    gaps = {}
+    for c in (0.0, 1.5):
+        cfg = dataclasses.replace(CFG, goal_noise=c)
+        goals, _ = _propose(cfg, ENV, DIST, NO_PARAMS)(POOL, 6, jnp.zeros(2), jax.random.key(0))
+        gaps[c] = np.abs(np.asarray(goals)[:, None] - states[None]).max(-1).min(-1)  # (K,)
+    np.testing.assert_array_equal(gaps[0.0], 0.0)
+    assert np.all(gaps[1.5] <= 1.5 + 1e-5) and gaps[1.5].max() > 0.5
+    params = inspect.signature(cur.propose).parameters
+    assert "eps" not in params and params["gamma"].default is inspect.Parameter.empty
 
 
 def test_matched_distance_equals_scipy_optimal_matching():
@@ -250,7 +291,10 @@ def test_value_variant_trades_cost_against_value():
     )
     assert np.linalg.norm(goals - ENV.goal_points, axis=-1).max() < 1.5
     with pytest.raises(ValueError, match="value_fn"):
-        cur.propose(cfg, ENV, DIST, NO_PARAMS, POOL, 6, jnp.zeros(2), jax.random.key(0), eps=EPS)
+        cur.propose(
+            cfg, ENV, DIST, NO_PARAMS, POOL, filled(POOL, 6), jnp.zeros(2), jax.random.key(0),
+            gamma=GAMMA,
+        )  # fmt: skip
 
 
 def test_warmup_fallback_with_an_empty_pool():
@@ -260,9 +304,8 @@ def test_warmup_fallback_with_an_empty_pool():
         goals, m = RUN(empty, valid, start, jax.random.key(valid))
         assert float(m["curriculum/pool_full"]) == 0.0
         assert np.all(np.linalg.norm(goals - start, axis=-1) < 4 * ENV.success_radius)
-    # The pool's validity may also be a (P,) mask.
-    assert not cur.pool_full(jnp.array([True] * 5 + [False]), 6)
-    assert cur.pool_full(jnp.ones(6, bool), 6) and cur.pool_full(jnp.int32(6), 6)
+    assert not cur.pool_full(jnp.array([True] * 5 + [False]))
+    assert cur.pool_full(jnp.ones(6, bool))
     # The fallback distribution: start + N(0, radius^2), clipped.
     warm = cur.warmup_goals(ENV, jnp.array([17.8, 0.0]), 4000, jax.random.key(1))
     assert np.all(warm <= 18.0)
@@ -315,9 +358,9 @@ def test_propose_on_the_medium_maze(medium_maze):
     ccfg = ClassifierConfig(n_heads=2, hidden_sizes=(16, 16))
     net = clf.make_classifier(ccfg, env)
     params = jax.jit(clf.init_classifier, static_argnums=(0, 1, 2))(
-        ccfg, net, env.goal_dim, jax.random.key(0)
+        net, clf.make_optimizer(), env.goal_dim, jax.random.key(0)
     ).params
-    cfg = CurriculumConfig(n_slots=4, pool_size=8)
+    cfg = CurriculumConfig(n_slots=4, pool_size=8, goal_noise=EPS)
     pool = jax.random.uniform(jax.random.key(1), (8, 101, 2), minval=-18.0, maxval=18.0)
     goals, m = _propose(cfg, env, net, params)(pool, 8, jnp.zeros(2), jax.random.key(2))
     assert goals.shape == (4, 2) and np.all(np.abs(goals) <= 18.0)
@@ -325,12 +368,18 @@ def test_propose_on_the_medium_maze(medium_maze):
     states = np.asarray(cur.subsample(pool, cfg.cost_stride)).reshape(-1, 2)
     gap = np.abs(np.asarray(goals)[:, None] - states[None]).max(-1).min(-1)
     assert np.all(gap <= EPS + 1e-5)
-    assert set(m) == {
-        "curriculum/distance",
-        "curriculum/slot_distance",
-        "curriculum/matched_cost",
-        "curriculum/pool_full",
-    }
+    assert (
+        set(m)
+        == set(cur.METRIC_KEYS)
+        == {
+            "curriculum/distance",
+            "curriculum/slot_distance",
+            "curriculum/matched_cost",
+            "curriculum/pool_full",
+            "curriculum/auction_converged",
+        }
+    )
+    assert float(m["curriculum/auction_converged"]) == 1.0
     assert np.isfinite(float(m["curriculum/distance"]))
 
 
@@ -380,3 +429,14 @@ def test_outpace_rule_samples_qualifying_candidates_by_softmax():
     assert p.mean() == pytest.approx(expected.mean(), abs=0.01)
     # Not the argmax rule: the pick is below the best candidate often.
     assert np.mean(p < best - 1e-6) > 0.3
+
+
+def test_a_matching_stopped_by_the_iteration_cap_is_logged_as_not_converged():
+    """curriculum/auction_converged is 0 when auction_max_iters stops the auction (its
+    assignment is then completed greedily), 1 when it finishes."""
+    capped = dataclasses.replace(CFG, auction_max_iters=1)
+    goals, m = _propose(capped, ENV, DIST, NO_PARAMS)(POOL, 6, jnp.zeros(2), jax.random.key(0))
+    assert float(m["curriculum/auction_converged"]) == 0.0
+    assert goals.shape == (4, 2)
+    _, m = RUN(POOL, 6, jnp.zeros(2), jax.random.key(0))
+    assert float(m["curriculum/auction_converged"]) == 1.0

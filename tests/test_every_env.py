@@ -8,15 +8,15 @@ import numpy as np
 import pytest
 
 import envs
-from d2c_jax.training import agent as trainer
-from d2c_jax.training import cli
+from d2c_jax.training import agent as agent_lib
+from d2c_jax.training import cli, loop
 
 
 @pytest.mark.parametrize("env_name", envs.ENV_NAMES)
 def test_tiny_preset_trains_and_evaluates(env_name, tmp_path):
     cfg, _, _ = cli.parse_args(["--env", env_name, "--preset", "tiny"])
     out = tmp_path / "run"
-    assert trainer.train(cfg, out, quiet=True) == 0
+    assert loop.train(cfg, out, quiet=True) == 0
     from d2c_jax.training import logging as logging_lib
 
     rows = logging_lib.read_metrics(out / "metrics.jsonl")
@@ -59,9 +59,9 @@ def test_quick_preset_moves_the_curriculum_away_from_the_start(env_name, total_s
         ["--env", env_name, "--preset", "quick", "--total-steps", str(total_steps)]
     )
     out = tmp_path / "run"
-    assert trainer.train(cfg, out, quiet=True) == 0
+    assert loop.train(cfg, out, quiet=True) == 0
     env = envs.make(env_name)
-    warmup = trainer.make_schedule(cfg, env.horizon).warmup_iterations
+    warmup = agent_lib.make_schedule(cfg, env.horizon).warmup_iterations
     rows = [r for r in logging_lib.read_metrics(out / "metrics.jsonl") if r["iteration"] > warmup]
     with_goals = [r for r in rows if "curriculum/goals" in r]
     start = np.asarray(env.start_goal, np.float64)

@@ -45,7 +45,9 @@ def reward_first_coordinate(ag_next, goal):
 def big_batch():
     state = buffer_with([3, 4, 5])
     relabel = jax.jit(her.relabel, static_argnums=(0, 2, 3))
-    return relabel(HERConfig(), state, 20_000, reward_first_coordinate, jax.random.key(0))
+    return relabel(
+        HERConfig().relabel_prob, state, 20_000, reward_first_coordinate, jax.random.key(0)
+    )
 
 
 def test_relabelled_goals_come_from_later_steps_of_the_same_episode(big_batch):
@@ -85,7 +87,7 @@ def test_rewards_are_recomputed_on_next_achieved_goal_and_final_goal(big_batch):
 @pytest.mark.parametrize("prob, expected", [(0.0, 0.0), (1.0, 1.0)])
 def test_relabel_probability_extremes(prob, expected):
     b = her.relabel(
-        HERConfig(relabel_prob=prob), buffer_with([1]), 500, reward_first_coordinate,
+        prob, buffer_with([1]), 500, reward_first_coordinate,
         jax.random.key(1),
     )  # fmt: skip
     assert float(np.mean(np.asarray(b.goal[:, 0] != STORED_GOAL))) == expected
@@ -108,7 +110,7 @@ def test_sparse_reward_with_her_rewards_reached_future_goals():
     """With the sparse reward, relabelling to t' = t + 1 always pays 1."""
     state = buffer_with([2])
     reward_fn = her.sparse_reward_fn(RadiusEnv())
-    b = her.relabel(HERConfig(relabel_prob=1.0), state, 2000, reward_fn, jax.random.key(2))
+    b = her.relabel(1.0, state, 2000, reward_fn, jax.random.key(2))
     next_step = np.asarray(b.goal[:, 0]) == np.asarray(b.next_obs[:, 0])
     np.testing.assert_array_equal(np.asarray(b.reward)[next_step], 1.0)
     np.testing.assert_array_equal(np.asarray(b.reward)[~next_step], 0.0)

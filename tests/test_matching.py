@@ -1,11 +1,14 @@
 """The jitted auction against scipy's exact assignment (SPEC §5a)."""
 
+import inspect
+
 import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
 from scipy.optimize import linear_sum_assignment
 
+from d2c_jax.config import CurriculumConfig
 from d2c_jax.curricula import matching
 
 # (K, P) shapes from 1x1 to 64x256; 25 problems each, solved as one vmapped batch.
@@ -91,3 +94,11 @@ def test_custom_eps_final_bounds_the_gap():
     a = np.asarray(matching.auction(jnp.asarray(cost, jnp.float32), eps_final=0.5))
     rows, cols = linear_sum_assignment(cost)
     assert cost[np.arange(20), a].sum() <= cost[rows, cols].sum() + 20 * 0.5 + 1e-3
+
+
+def test_default_iteration_cap_is_the_curriculum_config_s():
+    """The contract's signature, and one default cap: `max_iters=None` is the config's."""
+    params = inspect.signature(matching.auction).parameters
+    assert list(params) == ["cost", "eps_final", "max_iters"]
+    assert params["eps_final"].default is None and params["max_iters"].default is None
+    assert matching._DEFAULT_MAX_ITERS == CurriculumConfig().auction_max_iters == 100_000

@@ -17,6 +17,7 @@ import numpy as np
 import pytest
 
 import envs
+from d2c_jax.core import rollout
 from d2c_jax.viewing import render
 
 SIZE = dict(width=96, height=72)
@@ -36,6 +37,11 @@ def _run_python(code: str, env: dict | None = None) -> subprocess.CompletedProce
         env=_without_gl_vars() if env is None else env,
         timeout=300,
     )
+
+
+def go_nowhere(obs, goal, key):
+    """No move, no turn."""
+    return jnp.zeros(2)
 
 
 def maze_qpos(*xy_theta) -> np.ndarray:
@@ -82,14 +88,13 @@ def test_physics_envs_render(name, gl_backend):
     assert np.any(frame != bare)
 
 
-def test_run_episodes_tile_and_gif_round_trip(medium_maze, tmp_path, gl_backend):
-    policy = render.random_policy(medium_maze)
-    traj = render.run_episodes(
-        medium_maze, policy, medium_maze.goal_points[:3], jax.random.key(1), 4
+def test_episode_loop_tile_and_gif_round_trip(medium_maze, tmp_path, gl_backend):
+    """Episodes of the loop (`rollout.trajectories`, 4 steps) -> frames -> tiles -> GIF."""
+    policy = rollout.random_policy(medium_maze.action_dim)
+    trace = rollout.trajectories(
+        medium_maze, policy, medium_maze.goal_points[:3], jax.random.key(1), steps=4
     )
-    assert traj.qpos.shape == (3, 5, 3) and traj.goal.shape == (3, 5, 2)
-    np.testing.assert_allclose(traj.goal[:, 0], medium_maze.goal_points[:3])
-    frames = render.render_frames(medium_maze, traj, **SIZE)
+    frames = render.render_frames(medium_maze, trace, **SIZE)
     assert frames.shape == (3, 5, 72, 96, 3)
     video = render.tile(frames, cols=2)
     assert video.shape == (5, 144, 192, 3)
@@ -98,6 +103,21 @@ def test_run_episodes_tile_and_gif_round_trip(medium_maze, tmp_path, gl_backend)
     back = iio.imread(path, index=None)
     assert back.shape[0] == 5 and back.shape[1:3] == (144, 192)
     assert np.abs(back[..., :3].astype(int) - video).mean() < 8  # GIF palette quantisation
+
+
+def test_to_trajectory_takes_a_rollout_trace(medium_maze):
+    """A rollout.Trace becomes a numpy Trajectory with the same fields (no GL needed)."""
+    goals = medium_maze.goal_points[:3]
+    trace = rollout.trajectories(medium_maze, go_nowhere, goals, jax.random.key(1), steps=2)
+    traj = render.to_trajectory(trace)
+    assert isinstance(traj, render.Trajectory)
+    assert traj.qpos.shape == (3, 3, 3) and traj.goal.shape == (3, 3, 2)
+    assert traj.mocap_pos.shape == (3, 3, 0, 3) and traj.success.shape == (3, 3)
+    for field in render.Trajectory._fields:
+        assert isinstance(getattr(traj, field), np.ndarray)
+        np.testing.assert_array_equal(getattr(traj, field), getattr(trace, field))
+    np.testing.assert_allclose(traj.goal[:, 0], goals)
+    np.testing.assert_array_equal(traj.achieved_goal, traj.qpos[..., :2])
 
 
 def test_backend_chosen_even_when_mujoco_was_imported_first(tmp_path, gl_backend):
@@ -177,7 +197,7 @@ def test_gl_backend_available_reports_a_broken_backend_without_failing():
 
 def test_render_cli_without_a_run_exits_2(tmp_path):
     out = subprocess.run(
-        [sys.executable, "-m", "d2c_jax.viewing.render", str(tmp_path)],
+        [sys.executable, "-m", "d2c_jax.render", str(tmp_path)],
         capture_output=True,
         text=True,
         timeout=300,

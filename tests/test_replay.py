@@ -45,7 +45,7 @@ def test_init_shapes_and_capacity_rounding():
     chex.assert_shape(state.achieved_goal, (10, 101, 2))
     chex.assert_shape(state.action, (10, 100, 2))
     chex.assert_shape(state.goal, (10, 100, 2))
-    assert int(state.size) == int(state.ptr) == int(state.n_episodes) == 0
+    assert int(state.size) == int(state.ptr) == 0
     with pytest.raises(ValueError):
         replay.init_replay(ReplayConfig(capacity=99), 6, 2, 2, 100)
 
@@ -54,10 +54,10 @@ def test_wraparound_overwrites_the_oldest_episodes():
     insert = jax.jit(replay.insert_episodes)
     state = fresh(5)
     state = insert(state, make_episodes([0, 1, 2]))
-    assert (int(state.ptr), int(state.size), int(state.n_episodes)) == (3, 3, 3)
+    assert (int(state.ptr), int(state.size)) == (3, 3)
     state = insert(state, make_episodes([3, 4, 5]))
     # Slots 3, 4 take episodes 3, 4; episode 5 wraps to slot 0, overwriting episode 0.
-    assert (int(state.ptr), int(state.size), int(state.n_episodes)) == (1, 5, 6)
+    assert (int(state.ptr), int(state.size)) == (1, 5)
     np.testing.assert_array_equal(state.obs[:, 0, 0], [500, 100, 200, 300, 400])
     np.testing.assert_array_equal(state.action[:, 2, 0], [502, 102, 202, 302, 402])
     np.testing.assert_array_equal(state.goal[0, :, 0], [500.25, 501.25, 502.25])

@@ -1,8 +1,10 @@
-"""Episode collection and evaluation on the medium maze with scripted policies."""
+"""The episode loop (`rollout.run`) and what is built on it (collection, evaluation,
+trajectories for rendering) on the medium maze with scripted policies."""
 
 import jax
 import jax.numpy as jnp
 import numpy as np
+import pytest
 
 from d2c_jax.core import rollout
 
@@ -10,6 +12,20 @@ from d2c_jax.core import rollout
 def go_right(obs, goal, key):
     """Full speed along +x (heading starts near 0)."""
     return jnp.array([1.0, -obs[2]])
+
+
+def oracle(obs, goal, key):
+    """Along the y = 0 corridor to the goal's column, then up/down; no wall contact."""
+    xy = obs[:2]
+    along = jnp.abs(goal[0] - xy[0]) > 0.3
+    # Turn on the spot (move 0) until facing the target, so moves never graze walls.
+    target = jnp.where(along, jnp.array([goal[0], 0.0]), goal)
+    d = target - xy
+    heading = jnp.arctan2(d[1], d[0])
+    error = (heading - obs[2] + jnp.pi) % (2 * jnp.pi) - jnp.pi
+    turn = jnp.clip(error, -1, 1)
+    move = jnp.where(jnp.abs(error) < 0.5, jnp.minimum(jnp.linalg.norm(d), 1.0), 0.0)
+    return jnp.array([move, turn])
 
 
 def test_collect_shapes_and_goal_assignment(medium_maze):
@@ -50,19 +66,6 @@ def test_evaluate_scores_reachable_and_unreachable_modes(medium_maze):
     score = jax.jit(lambda k: rollout.evaluate(env, go_right, 3, k))(jax.random.key(0))
     np.testing.assert_array_equal(score, np.zeros(4))
 
-    def oracle(obs, goal, key):
-        """Along the y = 0 corridor to the goal's column, then up/down; no wall contact."""
-        xy = obs[:2]
-        along = jnp.abs(goal[0] - xy[0]) > 0.3
-        # Turn on the spot (move 0) until facing the target, so moves never graze walls.
-        target = jnp.where(along, jnp.array([goal[0], 0.0]), goal)
-        d = target - xy
-        heading = jnp.arctan2(d[1], d[0])
-        error = (heading - obs[2] + jnp.pi) % (2 * jnp.pi) - jnp.pi
-        turn = jnp.clip(error, -1, 1)
-        move = jnp.where(jnp.abs(error) < 0.5, jnp.minimum(jnp.linalg.norm(d), 1.0), 0.0)
-        return jnp.array([move, turn])
-
     score = jax.jit(lambda k: rollout.evaluate(env, oracle, 3, k))(jax.random.key(0))
     np.testing.assert_array_equal(score, np.ones(4))
 
@@ -102,3 +105,74 @@ def test_random_walk_switches_every_n_steps_and_marks_its_start(medium_maze):
 def test_walk_start_hand_computed():
     success = jnp.array([[0, 0, 1, 0, 1], [0, 0, 0, 0, 0], [1, 0, 0, 0, 0]], bool)
     np.testing.assert_array_equal(rollout.walk_start(success), [3, 5, 1])
+
+
+def test_trajectories_start_at_the_reset_state_and_take_any_number_of_steps(medium_maze):
+    env = medium_maze
+    goals = jnp.asarray(env.goal_points[:3])
+    key = jax.random.key(4)
+    tr = jax.jit(lambda g, k: rollout.trajectories(env, go_right, g, k, steps=4))(goals, key)
+    assert tr.qpos.shape == (3, 5, 3) and tr.mocap_pos.shape == (3, 5, 0, 3)
+    assert tr.goal.shape == (3, 5, 2) and tr.success.shape == (3, 5)
+    assert tr.achieved_goal.shape == (3, 5, 2)
+    np.testing.assert_array_equal(tr.goal, np.broadcast_to(goals[:, None], (3, 5, 2)))
+    key_reset, _ = rollout.episode_keys(key, 3, 4)
+    reset = jax.vmap(env.reset_with_goal)(key_reset, goals)
+    np.testing.assert_array_equal(tr.qpos[:, 0], reset.data.qpos)
+    np.testing.assert_array_equal(tr.achieved_goal, tr.qpos[..., :2])
+    assert (np.diff(tr.qpos[:, :, 0], axis=1) > 0.5).all()  # it goes right, step after step
+
+
+# Post-success goals far off: only a curriculum goal is ever reached, then the timer
+# switches goals (the goal switch draws keys too).
+far = lambda ag, key: ag + jnp.array([0.0, 100.0]) + jax.random.uniform(key, (2,))  # noqa: E731
+
+
+@pytest.mark.parametrize("switching", [False, True])
+def test_trajectories_play_collects_episodes(medium_maze, switching):
+    """Same goals and key: the rendering trajectories are the training episodes, with and
+    without goal switching (a state's goal is the one pursued when it was reached)."""
+    env = medium_maze
+    if switching:  # envs 0 and 2 reach (3, 0) and then switch; env 1 never does
+        policy, goals = go_right, jnp.array([[3.0, 0.0], [100.0, 100.0], [3.0, 0.0]])
+        switch = dict(next_goal=far, switch_every=10)
+    else:  # random actions, unreachable goals: no env ever switches
+        policy, goals = rollout.random_policy(2), jnp.array([[100.0, 100.0], [-100.0, 0.0]])
+        switch = {}
+    key = jax.random.key(5)
+    ep = rollout.collect(env, policy, far, goals, len(goals), key, switch.get("switch_every", 0))
+    tr = rollout.trajectories(env, policy, goals, key, **switch)
+    np.testing.assert_array_equal(tr.achieved_goal, ep.achieved_goal)
+    np.testing.assert_array_equal(tr.goal[:, 1:], ep.goal)
+    np.testing.assert_array_equal(tr.success[:, 1:], ep.success)
+    np.testing.assert_array_equal(tr.goal[:, 0], goals)
+    changed = (np.asarray(ep.goal)[:, 1:] != np.asarray(ep.goal)[:, :-1]).any(axis=(1, 2))
+    np.testing.assert_array_equal(changed, [switching, False, switching][: len(goals)])
+
+
+def test_evaluate_scores_the_episodes_of_the_loop(medium_maze):
+    """evaluate(key) = success at any step of trajectories(modes repeated, key)."""
+    env = medium_maze
+    # The oracle for the upper modes; standing still (never a success) for the lower ones.
+    policy = lambda obs, goal, key: jnp.where(goal[1] > 0, oracle(obs, goal, key), 0.0)  # noqa: E731
+    key = jax.random.key(6)
+    score = jax.jit(lambda k: rollout.evaluate(env, policy, 2, k))(key)
+    goals = jnp.repeat(jnp.asarray(env.goal_points), 2, axis=0)
+    tr = rollout.trajectories(env, policy, goals, key)
+    hit = np.asarray(tr.success[:, 1:]).any(axis=1).reshape(4, 2).mean(axis=1)
+    np.testing.assert_array_equal(score, hit)
+    np.testing.assert_array_equal(score, (np.asarray(env.goal_points)[:, 1] > 0).astype(float))
+
+
+def test_run_records_what_it_is_told(medium_maze):
+    """run(record=...) keeps per step what record(before, action, after) returns."""
+    env = medium_maze
+    goals = jnp.array([[100.0, 100.0], [-100.0, 0.0]])
+    record = lambda before, action, after: (action, after.obs[:2] - before.obs[:2])  # noqa: E731
+    first, (action, moved) = rollout.run(
+        env, go_right, goals, jax.random.key(0), record=record, steps=3
+    )
+    np.testing.assert_array_equal(first.goal, goals)
+    assert action.shape == (2, 3, 2) and moved.shape == (2, 3, 2)
+    np.testing.assert_array_equal(action[..., 0], np.ones((2, 3)))
+    np.testing.assert_allclose(np.linalg.norm(moved, axis=-1), 1.0, atol=0.05)

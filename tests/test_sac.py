@@ -85,19 +85,27 @@ def probe_batch(p: Probe, key) -> types.Batch:
     return types.Batch(obs, action, reward, obs + 1.0, jnp.zeros((b, 1)), first.astype(jnp.float32))
 
 
+def parts(cfg: SACConfig, env):
+    """(nets, optimisers, hyperparameters) of `cfg`, as the trainer builds them."""
+    return networks.make_networks(cfg, env), sac.make_optimizers(), sac.hyperparams(cfg)
+
+
 @jax.jit
 def run_probe(p: Probe, key):
-    """init + 3000 updates; returns Q (2 critics, s0/s1, 9 actions), tanh(mean) at s0/s1."""
+    """init + 3000 updates (in blocks); returns Q (2 critics, s0/s1, 9 actions) and
+    tanh(mean) at s0/s1."""
     env = ProbeEnv()
-    nets = networks.make_networks(PROBE_CFG, env)
+    nets, opt, hp = parts(PROBE_CFG, env)
+    n = sac.block_size(PROBE_CFG)
 
     def body(s, k):
         k_batch, k_update = jax.random.split(k)
-        return sac.update_sac(PROBE_CFG, nets, s, probe_batch(p, k_batch), env, k_update)
+        batches = jax.vmap(lambda kb: probe_batch(p, kb))(jax.random.split(k_batch, n))
+        return sac.update_sac_block(PROBE_CFG, nets, opt, hp, s, batches, env, k_update)
 
     k_init, k_run = jax.random.split(key)
-    state = sac.init_sac(PROBE_CFG, nets, env, k_init)
-    state, metrics = jax.lax.scan(body, state, jax.random.split(k_run, 3000))
+    state = sac.init_sac(nets, opt, env, hp, k_init)
+    state, metrics = jax.lax.scan(body, state, jax.random.split(k_run, 3000 // n))
     obs = jnp.repeat(jnp.array([0.0, 1.0]), 9)[:, None]
     feats = networks.actor_input(env, obs, jnp.zeros((18, 1)))
     q = nets.critic.apply(state.critic_params, feats, jnp.tile(PROBE_ACTIONS, 2)[:, None])
@@ -141,12 +149,12 @@ def test_probe_action_dependent_reward_actor_picks_best_action():
 
 def test_soft_td_target_and_critic_loss_by_hand():
     env = SmallEnv()
-    nets = networks.make_networks(CFG, env)
+    nets, opt, hp = parts(CFG, env)
     batch = random_batch(env, 8, jax.random.key(1))._replace(mask=jnp.arange(8) % 2)
 
     @jax.jit
     def both(key):
-        state = sac.init_sac(CFG, nets, env, jax.random.key(0))
+        state = sac.init_sac(nets, opt, env, hp, jax.random.key(0))
         feats = networks.actor_input(env, batch.obs, batch.goal)
         next_feats = networks.actor_input(env, batch.next_obs, batch.goal)
         y, logp = sac.soft_td_target(
@@ -174,100 +182,150 @@ def test_soft_td_target_and_critic_loss_by_hand():
 # --- one update -------------------------------------------------------------------------
 
 
+class Small(NamedTuple):
+    env: SmallEnv
+    nets: networks.SACNetworks
+    opt: sac.Optimizers
+    hp: sac.SACHyperparams
+    state: sac.SACState
+    block: object  # jitted (state, batches (2, B, ...), key) -> (state, metrics)
+    batches: list  # 6 batches, three blocks' worth
+
+
 @pytest.fixture(scope="module")
 def small():
     env = SmallEnv()
-    nets = networks.make_networks(CFG, env)
-    state = jax.jit(lambda k: sac.init_sac(CFG, nets, env, k))(jax.random.key(0))
-    update = jax.jit(lambda s, b, k: sac.update_sac(CFG, nets, s, b, env, k))
-    batches = [random_batch(env, CFG.batch_size, jax.random.key(10 + i)) for i in range(3)]
-    return env, nets, state, update, batches
+    nets, opt, hp = parts(CFG, env)
+    state = jax.jit(lambda k: sac.init_sac(nets, opt, env, hp, k))(jax.random.key(0))
+    block = jax.jit(lambda s, b, k: sac.update_sac_block(CFG, nets, opt, hp, s, b, env, k))
+    batches = [random_batch(env, CFG.batch_size, jax.random.key(10 + i)) for i in range(6)]
+    return Small(env, nets, opt, hp, state, block, batches)
+
+
+def stack(*batches):
+    return jax.tree.map(lambda *xs: jnp.stack(xs), *batches)
 
 
 def test_init_sac(small):
-    env, _, state, _, _ = small
-    for leaf in jax.tree.leaves(state.critic_params):
+    for leaf in jax.tree.leaves(small.state.critic_params):
         assert leaf.shape[0] == 2
-    chex.assert_trees_all_equal(state.critic_params, state.target_critic_params)
-    np.testing.assert_allclose(jnp.exp(state.log_alpha), 0.3, rtol=1e-6)
-    assert int(state.step) == 0
-    assert sac.target_entropy(CFG, env.action_dim) == -2.0
+    chex.assert_trees_all_equal(small.state.critic_params, small.state.target_critic_params)
+    np.testing.assert_allclose(jnp.exp(small.state.log_alpha), 0.3, rtol=1e-6)
+    assert int(small.state.step) == 0
+    assert sac.target_entropy(CFG, small.env.action_dim) == -2.0
 
 
-def test_one_update_shapes_finite_metrics_and_schedule(small):
-    _, _, s0, update, batches = small
-    s1, m1 = update(s0, batches[0], jax.random.key(1))
-    chex.assert_trees_all_equal_shapes_and_dtypes(s0, s1)
-    assert all(np.isfinite(x).all() for x in jax.tree.leaves(s1) if x.dtype != jnp.int32)
+def test_adam_step_with_a_traced_learning_rate_is_optax_adam_bitwise():
+    """The optimisers are Adam without its step size, which the update applies from the
+    hyperparameter pytree: the same bits as optax.adam(lr) with lr compiled in."""
+    import optax
+
+    params = {"w": jax.random.normal(jax.random.key(0), (5, 3))}
+    grads = [jax.tree.map(lambda x, i=i: jnp.sin(x * (i + 1)), params) for i in range(3)]
+    lr = 3e-4
+    reference, ref_state = params, optax.adam(lr).init(params)
+    ours, our_state = params, sac.make_optimizers().actor.init(params)
+    for g in grads:
+        updates, ref_state = optax.adam(lr).update(g, ref_state, reference)
+        reference = optax.apply_updates(reference, updates)
+        ours, our_state = jax.jit(sac._apply, static_argnums=0)(
+            sac.make_optimizers().actor, jnp.float32(lr), g, our_state, ours
+        )
+    np.testing.assert_array_equal(ours["w"], reference["w"])
+
+
+def test_block_is_critic_then_critic_actor_alpha_and_target_by_hand(small):
+    """Block of 2 (actor and target every 2 updates): update 1 moves only the critic;
+    update 2 the critic, then the actor and alpha, then the Polyak target (tau = 0.01)."""
+    env, nets, opt, hp, s0 = small.env, small.nets, small.opt, small.hp, small.state
+    b0, b1 = small.batches[:2]
+    key = jax.random.key(1)
+    blk, metrics = small.block(s0, stack(b0, b1), key)
+    assert int(blk.step) == 2
+    assert all(np.shape(v) == () and np.isfinite(v) for v in metrics.values())
     expected = {"sac/critic_loss", "sac/actor_loss", "sac/alpha", "sac/q_mean", "sac/entropy"}
-    assert expected <= set(m1)
-    assert all(np.shape(v) == () and np.isfinite(v) for v in m1.values())
-    assert int(s1.step) == 1
-    # Update 1: only the critic moves (actor, alpha and target every 2 updates).
-    chex.assert_trees_all_equal(s1.actor_params, s0.actor_params)
-    chex.assert_trees_all_equal(s1.target_critic_params, s0.target_critic_params)
-    assert float(s1.log_alpha) == float(s0.log_alpha)
-    assert not np.allclose(*[jax.tree.leaves(p.critic_params)[0] for p in (s0, s1)])
-    # Update 2: actor, alpha and the Polyak target (tau = 0.01) move too.
-    s2, _ = update(s1, batches[1], jax.random.key(2))
-    assert float(s2.log_alpha) != float(s1.log_alpha)
-    for a, b in zip(
-        jax.tree.leaves(s1.actor_params), jax.tree.leaves(s2.actor_params), strict=True
-    ):
-        assert not np.allclose(a, b)
-    tgt = jax.tree.map(lambda t, c: 0.99 * t + 0.01 * c, s1.target_critic_params, s2.critic_params)
-    chex.assert_trees_all_close(s2.target_critic_params, tgt, rtol=1e-5, atol=1e-7)
+    assert expected <= set(metrics)
+
+    @jax.jit
+    def by_hand(state):
+        k0, k1 = jax.random.split(key, 2)  # the block's key per update
+        k0_critic, _ = jax.random.split(k0)
+        k1_critic, k1_actor = jax.random.split(k1)
+        f0, n0 = sac._features(env, b0)
+        first, _ = sac._critic_step(CFG, nets, opt, hp, state, f0, n0, b0, k0_critic)
+        f1, n1 = sac._features(env, b1)
+        second, _ = sac._critic_step(CFG, nets, opt, hp, first, f1, n1, b1, k1_critic)
+        second = sac._actor_step(CFG, nets, opt, hp, second, f1, env.action_dim, k1_actor)
+        return first, sac._polyak(second, hp.tau)
+
+    first, second = by_hand(s0)
+    chex.assert_trees_all_equal(first.actor_params, s0.actor_params)
+    chex.assert_trees_all_equal(first.target_critic_params, s0.target_critic_params)
+    assert float(first.log_alpha) == float(s0.log_alpha)
+    assert not np.allclose(*[jax.tree.leaves(p.critic_params)[0] for p in (s0, first)])
+    assert float(second.log_alpha) != float(first.log_alpha)
+    chex.assert_trees_all_close(
+        (blk.actor_params, blk.critic_params, blk.log_alpha, blk.target_critic_params),
+        (second.actor_params, second.critic_params, second.log_alpha, second.target_critic_params),
+        rtol=1e-5,
+        atol=1e-7,
+    )
+    tgt = jax.tree.map(lambda t, c: 0.99 * t + 0.01 * c, s0.target_critic_params, blk.critic_params)
+    chex.assert_trees_all_close(blk.target_critic_params, tgt, rtol=1e-5, atol=1e-7)
 
 
-def _three_updates(small, key):
-    _, _, state, update, batches = small
-    for i, batch in enumerate(batches):
-        state, _ = update(state, batch, jax.random.fold_in(key, i))
+def test_learning_rates_and_tau_are_read_from_the_hyperparameters(small):
+    """A sweep changes the pytree, not the program: lr 0 freezes the nets, tau 0 the target."""
+    zero = small.hp.replace(actor_lr=jnp.float32(0), critic_lr=jnp.float32(0), tau=jnp.float32(0))
+    nets, opt, env = small.nets, small.opt, small.env
+    block = jax.jit(lambda hp, s, b, k: sac.update_sac_block(CFG, nets, opt, hp, s, b, env, k))
+    batches, key = stack(*small.batches[:2]), jax.random.key(4)
+    frozen, _ = block(zero, small.state, batches, key)
+    chex.assert_trees_all_equal(frozen.critic_params, small.state.critic_params)
+    chex.assert_trees_all_equal(frozen.actor_params, small.state.actor_params)
+    chex.assert_trees_all_equal(frozen.target_critic_params, small.state.target_critic_params)
+    moved, _ = block(small.hp, small.state, batches, key)
+    assert not np.allclose(*[jax.tree.leaves(p.critic_params)[0] for p in (moved, frozen)])
+
+
+def _three_blocks(small, key):
+    state = small.state
+    for i in range(3):
+        batches = stack(*small.batches[2 * i : 2 * i + 2])
+        state, _ = small.block(state, batches, jax.random.fold_in(key, i))
     return state
 
 
 def test_same_key_same_parameters_different_key_different(small):
-    a = _three_updates(small, jax.random.key(5))
-    b = _three_updates(small, jax.random.key(5))
-    c = _three_updates(small, jax.random.key(6))
+    a = _three_blocks(small, jax.random.key(5))
+    b = _three_blocks(small, jax.random.key(5))
+    c = _three_blocks(small, jax.random.key(6))
     chex.assert_trees_all_equal(a, b)
     assert not np.allclose(jax.tree.leaves(a.actor_params)[0], jax.tree.leaves(c.actor_params)[0])
 
 
-def test_block_equals_two_single_updates(small):
-    env, nets, state, update, batches = small
-    assert sac.block_size(CFG) == 2
-    key = jax.random.key(3)
-    k0, k1 = jax.random.split(key, 2)
-    seq, _ = update(state, batches[0], k0)
-    seq, _ = update(seq, batches[1], k1)
-    stacked = jax.tree.map(lambda x, y: jnp.stack([x, y]), batches[0], batches[1])
-    block = jax.jit(lambda s, b, k: sac.update_sac_block(CFG, nets, s, b, env, k))
-    blk, metrics = block(state, stacked, key)
-    chex.assert_trees_all_close(seq, blk, rtol=1e-5, atol=1e-6)
-    assert int(blk.step) == 2 and np.isfinite(metrics["sac/critic_loss"])
-
-
-def test_update_vmaps_over_seeds(small):
-    """Under vmap the actor cond becomes a select; results equal the unbatched ones."""
-    env, nets, s0, update, batches = small
-    s1, _ = update(s0, batches[0], jax.random.key(7))  # a second, different "seed"
+def test_block_vmaps_over_seeds(small):
+    """The trainer vmaps blocks over seeds: results equal the unbatched ones."""
+    s0 = small.state
+    s1, _ = small.block(s0, stack(*small.batches[:2]), jax.random.key(7))  # another "seed"
     seeds = jax.tree.map(lambda a, b: jnp.stack([a, b]), s0, s1)
-    both = jax.tree.map(lambda x: jnp.stack([x, x]), batches[1])
-    vupdate = jax.jit(jax.vmap(lambda s, b, k: sac.update_sac(CFG, nets, s, b, env, k)))
+    batches = stack(*small.batches[2:4])
+    both = jax.tree.map(lambda x: jnp.stack([x, x]), batches)
+    nets, opt, hp, env = small.nets, small.opt, small.hp, small.env
+    vblock = jax.jit(
+        jax.vmap(lambda s, b, k: sac.update_sac_block(CFG, nets, opt, hp, s, b, env, k))
+    )
     keys = jnp.stack([jax.random.key(1), jax.random.key(2)])
-    out, _ = vupdate(seeds, both, keys)
-    out, _ = vupdate(out, both, keys)  # seed 0: a critic-only then a full update, seed 1: v.v.
-    for i, (state, key) in enumerate(((s0, jax.random.key(1)), (s1, jax.random.key(2)))):
-        for _ in range(2):
-            state, _ = update(state, batches[1], key)
+    out, _ = vblock(seeds, both, keys)
+    for i, (state, key) in enumerate(((s0, keys[0]), (s1, keys[1]))):
+        alone, _ = small.block(state, batches, key)
         chex.assert_trees_all_close(
-            jax.tree.map(lambda x, i=i: x[i], out), state, rtol=1e-5, atol=1e-6
+            jax.tree.map(lambda x, i=i: x[i], out), alone, rtol=1e-5, atol=1e-6
         )
 
 
 def test_policy_and_state_value(small):
-    env, nets, state, _, _ = small
+    env, nets, state = small.env, small.nets, small.state
     policy = sac.make_policy(nets, state, env, deterministic=False)
     a = policy(jnp.ones(3), jnp.zeros(2), jax.random.key(0))
     chex.assert_shape(a, (2,))

@@ -87,9 +87,9 @@ def replay_episodes(obs, ag, action, goal):
 
 def make_loop(env, cfg: SACConfig):
     """Jitted collect, update and evaluate functions."""
-    nets = networks.make_networks(cfg, env)
+    nets, opt, hp = networks.make_networks(cfg, env), sac.make_optimizers(), sac.hyperparams(cfg)
     reward_fn = her.sparse_reward_fn(env)
-    her_cfg = HERConfig()
+    relabel_prob, block = HERConfig().relabel_prob, sac.block_size(cfg)
 
     def collect(sac_state, key, warmup):
         key_goal, key_ep = jax.random.split(key)
@@ -106,10 +106,13 @@ def make_loop(env, cfg: SACConfig):
     def update(sac_state, buffer, key):
         def body(state, k):
             k_batch, k_upd = jax.random.split(k)
-            batch = her.relabel(her_cfg, buffer, cfg.batch_size, reward_fn, k_batch)
-            return sac.update_sac(cfg, nets, state, batch, env, k_upd)
+            batches = jax.vmap(
+                lambda kb: her.relabel(relabel_prob, buffer, cfg.batch_size, reward_fn, kb)
+            )(jax.random.split(k_batch, block))
+            return sac.update_sac_block(cfg, nets, opt, hp, state, batches, env, k_upd)
 
-        state, metrics = jax.lax.scan(body, sac_state, jax.random.split(key, UPDATES_PER_ITER))
+        keys = jax.random.split(key, UPDATES_PER_ITER // block)
+        state, metrics = jax.lax.scan(body, sac_state, keys)
         return state, jax.tree.map(jnp.mean, metrics)
 
     def evaluate(sac_state, key, n_goals):
@@ -134,7 +137,8 @@ def run_learning(seed: int = 0, log=print) -> dict:
     _, collect, update, evaluate = make_loop(env, cfg)
     key = jax.random.key(seed)
     key, k_init = jax.random.split(key)
-    state = sac.init_sac(cfg, networks.make_networks(cfg, env), env, k_init)
+    nets = networks.make_networks(cfg, env)
+    state = sac.init_sac(nets, sac.make_optimizers(), env, sac.hyperparams(cfg), k_init)
     buffer = replay.init_replay(
         ReplayConfig(capacity=1_000_000), env.obs_dim, env.action_dim, env.goal_dim, env.horizon
     )

@@ -11,9 +11,9 @@ import numpy as np
 import pytest
 
 from d2c_jax import config
-from d2c_jax.training import cli
+from d2c_jax.training import agent as agent_lib
+from d2c_jax.training import cli, loop, runs
 from d2c_jax.training import logging as logging_lib
-from d2c_jax.training import loop as run_loop
 
 ROOT = pathlib.Path(__file__).resolve().parents[1]
 
@@ -37,13 +37,11 @@ def strip_time(rows: list[dict]) -> list[dict]:
 @pytest.fixture(scope="module")
 def tiny_run(tmp_path_factory):
     """Two tiny runs of the same seed (in process), and their metrics."""
-    from d2c_jax.training import agent as trainer
-
     out = []
     for name in ("a", "b"):
         path = tmp_path_factory.mktemp(name) / "run"
         cfg, _, _ = cli.parse_args(["--env", "medium_maze", "--preset", "tiny"])
-        assert trainer.train(cfg, path) == 0
+        assert loop.train(cfg, path) == 0
         out.append(path)
     return out
 
@@ -70,13 +68,12 @@ def test_same_seed_gives_identical_metrics(tiny_run):
 
 
 def test_resume_equals_uninterrupted(tiny_run, tmp_path):
-    from d2c_jax.training import agent as trainer
 
     path = tmp_path / "run"
     cfg, _, _ = cli.parse_args(["--env", "medium_maze", "--preset", "tiny", "--total-steps", "400"])
-    assert trainer.train(cfg, path) == 0  # one iteration, then "killed"
+    assert loop.train(cfg, path) == 0  # one iteration, then "killed"
     cfg, _, _ = cli.parse_args(["--env", "medium_maze", "--preset", "tiny"])
-    assert trainer.train(cfg, path, resume=True) == 0
+    assert loop.train(cfg, path, resume=True) == 0
     resumed = strip_time(logging_lib.read_metrics(path / "metrics.jsonl"))
     full = strip_time(logging_lib.read_metrics(tiny_run[0] / "metrics.jsonl"))
     # The one-iteration run ends with a final evaluation row at iteration 1; resume
@@ -86,10 +83,9 @@ def test_resume_equals_uninterrupted(tiny_run, tmp_path):
 
 
 def test_two_seeds_give_per_seed_lists(tmp_path):
-    from d2c_jax.training import agent as trainer
 
     cfg, _, _ = cli.parse_args(["--env", "medium_maze", "--preset", "tiny", "--seeds", "2"])
-    assert trainer.train(cfg, tmp_path / "run") == 0
+    assert loop.train(cfg, tmp_path / "run") == 0
     last = logging_lib.read_metrics(tmp_path / "run" / "metrics.jsonl")[-1]
     assert isinstance(last["eval/success"], list) and len(last["eval/success"]) == 2
     assert isinstance(last["sac/critic_loss"], list) and len(last["sac/critic_loss"]) == 2
@@ -156,7 +152,6 @@ def test_overrides_reach_the_config():
 
 
 def test_nan_stops_with_status_3_and_keeps_checkpoint(tmp_path):
-    from d2c_jax.training import agent as trainer
 
     # An absurd learning rate makes the critic overflow within the tiny run.
     cfg, _, _ = cli.parse_args(
@@ -172,8 +167,8 @@ def test_nan_stops_with_status_3_and_keeps_checkpoint(tmp_path):
         ]
     )
     path = tmp_path / "run"
-    with pytest.raises(trainer.RunError) as err:
-        trainer.train(cfg, path)
+    with pytest.raises(runs.RunError) as err:
+        loop.train(cfg, path)
     assert err.value.status == 3
     assert "non-finite" in str(err.value) and "iteration" in str(err.value)
     rows = logging_lib.read_metrics(path / "metrics.jsonl")
@@ -182,11 +177,10 @@ def test_nan_stops_with_status_3_and_keeps_checkpoint(tmp_path):
 
 def test_schedule_matches_spec_hand_computed_counts():
     from d2c_jax import config
-    from d2c_jax.training import agent as trainer
 
     # config.preset needs no env module, so this holds before envs/ant.py exists.
-    ant = trainer.make_schedule(config.preset("ant", "paper"), horizon=300)
-    assert ant == trainer.Schedule(
+    ant = agent_lib.make_schedule(config.preset("ant", "paper"), horizon=300)
+    assert ant == agent_lib.Schedule(
         env_steps=6000,
         sac_updates=6000,
         classifier_updates=21,
@@ -194,13 +188,14 @@ def test_schedule_matches_spec_hand_computed_counts():
         eval_every=2,
         total_iterations=500,
         rematch_every=1,  # round(2000 / 6000) = 0 -> every iteration
+        checkpoint_every=25,  # 150,000 env steps (25 paper iterations)
     )
-    maze = trainer.make_schedule(config.preset("medium_maze", "paper"), horizon=100)
+    maze = agent_lib.make_schedule(config.preset("medium_maze", "paper"), horizon=100)
     assert (maze.env_steps, maze.sac_updates, maze.classifier_updates) == (2000, 2000, 16)
     assert (maze.warmup_iterations, maze.eval_every, maze.total_iterations) == (1, 5, 500)
     assert maze.rematch_every == 1
     four_envs = dataclasses.replace(config.preset("medium_maze", "paper"), num_envs=4)
-    assert trainer.make_schedule(four_envs, horizon=100).rematch_every == 5  # 2000 / 400
+    assert agent_lib.make_schedule(four_envs, horizon=100).rematch_every == 5  # 2000 / 400
 
 
 def test_held_goals_between_matchings_are_used_in_turn(medium_maze):
@@ -208,20 +203,17 @@ def test_held_goals_between_matchings_are_used_in_turn(medium_maze):
     metrics) and its envs take the next slots, K = 8 goals over 2 x 4 envs."""
     import jax
 
-    from d2c_jax import config
-    from d2c_jax.training import agent as trainer
-
     cfg = config.preset("medium_maze", "tiny")
     cfg = dataclasses.replace(
         cfg,
         curriculum=dataclasses.replace(cfg.curriculum, n_slots=8, pool_size=8, rematch_every=800),
     )
-    comp = trainer.make_components(cfg, medium_maze)
-    assert comp.schedule.rematch_every == 2
-    ts = trainer.init_seed_states(cfg, comp)
-    step = trainer.make_train_step(cfg, medium_maze)
-    ts1, m1 = step(ts, jax.numpy.asarray(True))
-    ts2, m2 = step(jax.tree.map(jax.numpy.copy, ts1), jax.numpy.asarray(False))
+    agent = agent_lib.Agent(cfg, medium_maze)
+    assert agent.schedule.rematch_every == 2
+    ts = agent.init_seeds()
+    step = agent_lib.jit_step(agent)
+    ts1, m1 = step(ts)
+    ts2, m2 = step(jax.tree.map(jax.numpy.copy, ts1))
     np.testing.assert_array_equal(ts1.curriculum_goals, ts2.curriculum_goals)
     for key in ("curriculum/distance", "curriculum/pool_full"):
         np.testing.assert_array_equal(m1[key], m2[key])
@@ -229,7 +221,7 @@ def test_held_goals_between_matchings_are_used_in_turn(medium_maze):
     first_goal = np.asarray(ts2.replay.goal[0, :8, 0])  # the first step of each episode
     np.testing.assert_array_equal(first_goal[:4], goals[:4])  # iteration 1: slots 0..3
     np.testing.assert_array_equal(first_goal[4:], goals[4:])  # iteration 2: slots 4..7
-    ts3, _ = step(jax.tree.map(jax.numpy.copy, ts2), jax.numpy.asarray(False))
+    ts3, _ = step(jax.tree.map(jax.numpy.copy, ts2))
     assert not np.array_equal(ts3.curriculum_goals, ts2.curriculum_goals)  # matched again
 
 
@@ -302,19 +294,14 @@ def test_sigterm_checkpoints_and_resume_continues(tmp_path):
     ],
 )
 def test_ablations_run_one_iteration(override):
-    import jax
-    import jax.numpy as jnp
-
     import envs
-    from d2c_jax.training import agent as trainer
 
     cfg, _, _ = cli.parse_args(["--env", "medium_maze", "--preset", "tiny", *override])
     env = envs.make(cfg.env)
-    comp = trainer.make_components(cfg, env)
-    ts = jax.vmap(lambda k: trainer.init_train_state(cfg, comp, k))(trainer.seed_keys(cfg))
-    step = trainer.make_train_step(cfg, env)
-    for warmup in (True, False):
-        ts, metrics = step(ts, jnp.asarray(warmup))
+    step = agent_lib.make_train_step(cfg, env)  # the contract path
+    ts = agent_lib.Agent(cfg, env).init_seeds()
+    for _ in range(2):  # a warm-up iteration, then a trained one
+        ts, metrics = step(ts)
     assert bool(metrics["health/params_finite"][0])
     assert np.isfinite(float(metrics["sac/critic_loss"][0]))
     if override[1] == "none":  # goals are the desired examples themselves
@@ -323,14 +310,12 @@ def test_ablations_run_one_iteration(override):
 
 def test_config_round_trips_through_config_json():
     cfg = config.preset("ant", "tiny")
-    assert config.from_dict(config.TrainConfig, json.loads(run_loop.config_to_json(cfg))) == cfg
+    assert config.from_dict(config.TrainConfig, json.loads(runs.config_to_json(cfg))) == cfg
 
 
 def test_over_seeds_equals_vmap_with_and_without_a_size_one_axis():
     import jax
     import jax.numpy as jnp
-
-    from d2c_jax.training import agent as trainer
 
     def fn(tree, scale):
         return {"y": tree["a"] @ tree["b"] * scale, "n": tree["a"].sum()}
@@ -342,6 +327,6 @@ def test_over_seeds_equals_vmap_with_and_without_a_size_one_axis():
             "b": jnp.asarray(rng.normal(size=(n, 5))),
         }
         want = jax.vmap(fn, in_axes=(0, None))(tree, 2.0)
-        got = trainer.over_seeds(fn, n, in_axes=(0, None))(tree, 2.0)
+        got = agent_lib.over_seeds(fn, n, in_axes=(0, None))(tree, 2.0)
         assert jax.tree.map(jnp.shape, got) == jax.tree.map(jnp.shape, want)
         jax.tree.map(lambda g, w: np.testing.assert_allclose(g, w, rtol=1e-6), got, want)

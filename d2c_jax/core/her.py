@@ -13,7 +13,6 @@ from __future__ import annotations
 import jax
 import jax.numpy as jnp
 
-from d2c_jax.config import HERConfig
 from d2c_jax.core import replay
 from d2c_jax.core.types import Batch, RewardFn
 
@@ -43,7 +42,7 @@ def future_goals(state: replay.ReplayState, episode: jax.Array, step: jax.Array,
 
 
 def relabel(
-    cfg: HERConfig,
+    relabel_prob: jax.Array | float,
     state: replay.ReplayState,
     batch_size: int,
     reward_fn: RewardFn,
@@ -56,7 +55,8 @@ def relabel(
     limits are truncations. Probe tests with real terminals build `Batch` directly.
 
     Args:
-      cfg: HER config (relabel_prob).
+      relabel_prob: probability of relabelling a transition's goal (HERConfig; a
+        traced value in the trainer, so a sweep can vmap over it).
       state: a non-empty replay buffer.
       batch_size: B.
       reward_fn: reward_fn(ag_next, goal) -> reward, see `RewardFn`.
@@ -68,7 +68,7 @@ def relabel(
     key_sample, key_future, key_coin = jax.random.split(key, 3)
     tr = replay.sample(state, batch_size, key_sample, walk_fraction)
     future = future_goals(state, tr.episode, tr.step, key_future)
-    use_future = jax.random.bernoulli(key_coin, cfg.relabel_prob, (batch_size,))
+    use_future = jax.random.bernoulli(key_coin, relabel_prob, (batch_size,))
     goal = jnp.where(use_future[:, None], future, tr.goal)
     reward = reward_fn(tr.next_achieved_goal, goal).astype(jnp.float32)
     return Batch(

@@ -34,7 +34,6 @@ class ReplayState:
     walk_start: jax.Array  # (n_slots,) int32 first random-walk step (H: the goal never reached)
     ptr: jax.Array  # () int32 next slot to write
     size: jax.Array  # () int32 slots holding an episode (<= n_slots)
-    n_episodes: jax.Array  # () int32 episodes ever inserted
 
     @property
     def n_slots(self) -> int:
@@ -79,7 +78,6 @@ def init_replay(
         walk_start=jnp.full((n_slots,), horizon, jnp.int32),
         ptr=jnp.zeros((), jnp.int32),
         size=jnp.zeros((), jnp.int32),
-        n_episodes=jnp.zeros((), jnp.int32),
     )
 
 
@@ -113,7 +111,6 @@ def insert_episodes(state: ReplayState, episodes) -> ReplayState:
         walk_start=write(state.walk_start, _walk_start(episodes, state.horizon)),
         ptr=(state.ptr + n) % state.n_slots,
         size=jnp.minimum(state.size + n, state.n_slots),
-        n_episodes=state.n_episodes + n,
     )
 
 

@@ -1,15 +1,25 @@
-"""Episode collection: `num_envs` parallel episodes, vmapped over envs, scanned over time.
+"""The episode loop: `num_envs` parallel episodes, one step vmapped over envs, scanned over time.
 
-SPEC §2 step 2: env i is conditioned on curriculum goal i mod K; when an env reaches its
-current goal it switches to a new one (SPEC §6, Alg. 1 lines 8-9) through `env.set_goal`,
-and, once the curriculum goal was reached, optionally also every `switch_every` steps
-(OUTPACE's random walk). Training episodes never end early. Each transition keeps the
-goal that was active when its action was taken.
+`run` is the one loop; everything that plays episodes is built on it:
+
+- `collect` (training, SPEC §2 step 2): env i is conditioned on curriculum goal i mod K;
+  when an env reaches its current goal it switches to a new one (SPEC §6, Alg. 1 lines
+  8-9) through `env.set_goal`, and, once the curriculum goal was reached, optionally also
+  every `switch_every` steps (OUTPACE's random walk). Training episodes never end early.
+  Each transition keeps the goal that was active when its action was taken.
+- `evaluate` (SPEC §7): one episode per (mode, repeat), no goal switching.
+- `trajectories` (rendering, the demo): the states an episode visits, reset state first.
+
+Key streams: episode i of `run(..., key)` uses `split(key, n)[i]`, split into (reset,
+steps); the step key t = `split(steps, H)[t]` is split once more, the policy getting the
+first half and the goal switch the second. So an episode does not depend on how many
+others run beside it, and `collect`, `evaluate` and `trajectories` given the same goals
+and key play the same episodes.
 """
 
 from __future__ import annotations
 
-from typing import Callable, NamedTuple
+from typing import Any, Callable, NamedTuple
 
 import jax
 import jax.numpy as jnp
@@ -20,6 +30,10 @@ from envs import EnvState, GoalEnv
 Policy = Callable[[jax.Array, jax.Array, jax.Array], jax.Array]
 # next_goal(achieved_goal (goal_dim,), key) -> goal (goal_dim,)
 GoalSwitch = Callable[[jax.Array, jax.Array], jax.Array]
+# record(before, action (action_dim,), after) -> pytree: what `run` keeps of one env's
+# step; `before` is the state the action was taken in, `after` the state it led to, with
+# the goal still the one pursued (any goal switch comes after the record).
+Record = Callable[[EnvState, jax.Array, EnvState], Any]
 
 
 class Episodes(NamedTuple):
@@ -33,8 +47,19 @@ class Episodes(NamedTuple):
     walk_start: jax.Array  # (n_envs,) int32 first step after the curriculum goal was reached
 
 
+class Trace(NamedTuple):
+    """The states of a batch of episodes, reset state first: what drawing them needs
+    (the fields of `viewing.render.Trajectory`). T is the number of steps."""
+
+    qpos: jax.Array  # (n, T + 1, nq)
+    mocap_pos: jax.Array  # (n, T + 1, nmocap, 3)
+    goal: jax.Array  # (n, T + 1, goal_dim), the goal pursued in each state
+    success: jax.Array  # (n, T + 1) bool, that goal reached in this state
+    achieved_goal: jax.Array  # (n, T + 1, goal_dim) phi(s)
+
+
 def random_policy(action_dim: int) -> Policy:
-    """Uniform random actions in [-1, 1] (the warm-up)."""
+    """Uniform random actions in [-1, 1] (the warm-up, the demo)."""
 
     def policy(obs, goal, key):
         return jax.random.uniform(key, (action_dim,), minval=-1.0, maxval=1.0)
@@ -50,6 +75,21 @@ def walk_start(success: jax.Array) -> jax.Array:
     horizon = success.shape[-1]
     first = jnp.argmax(success, axis=-1)
     return jnp.where(success.any(axis=-1), first + 1, horizon).astype(jnp.int32)
+
+
+# --- the loop ---------------------------------------------------------------------------
+
+
+def episode_keys(key: jax.Array, num_envs: int, steps: int) -> tuple[jax.Array, jax.Array]:
+    """(reset keys (n_envs,), step keys (steps, n_envs)) of `run`.
+
+    Env i's keys come from `split(key, n_envs)[i]` alone, split into (reset, steps), the
+    latter into `steps` step keys: the same stream as a per-env episode loop.
+    """
+    split = jax.vmap(jax.random.split)
+    key_reset, key_steps = jnp.moveaxis(split(jax.random.split(key, num_envs)), 1, 0)
+    step_keys = jax.vmap(lambda k: jax.random.split(k, steps))(key_steps)  # (n, steps)
+    return key_reset, jnp.moveaxis(step_keys, 1, 0)
 
 
 def _switch_goals(env: GoalEnv, next_goal: GoalSwitch, states: EnvState, switch, keys):
@@ -68,6 +108,88 @@ def _switch_goals(env: GoalEnv, next_goal: GoalSwitch, states: EnvState, switch,
     return jax.vmap(env.set_goal)(states, goals)
 
 
+def _make_step(
+    env: GoalEnv, policy: Policy, next_goal: GoalSwitch | None, switch_every: int, record: Record
+):
+    """The scan body of `run`: (carry, keys (n_envs,)) -> (carry, records (n_envs, ...)).
+
+    carry = (states (n_envs,), walking (n_envs,) bool past the first success, since
+    (n_envs,) int32 steps since the last goal switch).
+    """
+    split = jax.vmap(jax.random.split)
+
+    def step(carry, keys):
+        states, walking, since = carry
+        key_act, key_goal = jnp.moveaxis(split(keys), 1, 0)
+        actions = jax.vmap(policy)(states.obs, states.goal, key_act)
+        after = jax.vmap(env.step)(states, actions)
+        out = jax.vmap(record)(states, actions, after)
+        if next_goal is None:
+            return (after, walking, since), out
+        reached = after.success
+        # SPEC §6: after success, pick a new goal for the following steps; OUTPACE also
+        # every `switch_every` steps of the random walk, so no goal holds the agent long.
+        due = walking & (since + 1 >= switch_every) if switch_every > 0 else False
+        switch = reached | due
+        after = _switch_goals(env, next_goal, after, switch, key_goal)
+        return (after, walking | reached, jnp.where(switch, 0, since + 1)), out
+
+    return step
+
+
+def run(
+    env: GoalEnv,
+    policy: Policy,
+    goals: jax.Array,
+    key: jax.Array,
+    *,
+    record: Record,
+    steps: int | None = None,
+    next_goal: GoalSwitch | None = None,
+    switch_every: int = 0,
+) -> tuple[EnvState, Any]:
+    """Plays one episode per goal in parallel: the one episode loop.
+
+    A scan over the steps of a step vmapped over envs (rather than a vmap of per-env
+    scans), so that a step where no env switches goals skips the goal choice.
+
+    Args:
+      env: the environment.
+      policy: action function (see `Policy`); it gets the first half of each step key.
+      goals: (n_envs, goal_dim) the goal each episode starts with (`env.reset_with_goal`).
+      key: PRNG key (streams: see `episode_keys`).
+      record: what to keep of each step (see `Record`).
+      steps: env steps per episode (default: the horizon H).
+      next_goal: post-success goal choice (see `GoalSwitch`); None: goals never change.
+      switch_every: with `next_goal`, after the first success also switch goals every
+        this many steps (0: only on success).
+    Returns:
+      (the reset states (n_envs,), the records with leading axes (n_envs, steps)).
+    """
+    steps = env.horizon if steps is None else steps
+    num_envs = goals.shape[0]
+    key_reset, step_keys = episode_keys(key, num_envs, steps)
+    first = jax.vmap(env.reset_with_goal)(key_reset, goals)
+    step = _make_step(env, policy, next_goal, switch_every, record)
+    carry = (first, jnp.zeros(num_envs, bool), jnp.zeros(num_envs, jnp.int32))
+    _, records = jax.lax.scan(step, carry, step_keys)
+    env_major = lambda x: jnp.moveaxis(x, 0, 1)  # noqa: E731  (steps, n, ...) -> (n, steps, ...)
+    return first, jax.tree.map(env_major, records)
+
+
+def _prepend(first: jax.Array, rest: jax.Array) -> jax.Array:
+    """(n, ...) and (n, T, ...) -> (n, T + 1, ...): the reset state's value first."""
+    return jnp.concatenate([first[:, None], rest], axis=1)
+
+
+# --- what plays episodes ----------------------------------------------------------------
+
+
+def _transition(before: EnvState, action: jax.Array, after: EnvState) -> tuple:
+    """`collect`'s record: (obs', achieved goal', action, goal pursued, success')."""
+    return after.obs, after.achieved_goal, action, before.goal, after.success
+
+
 def collect(
     env: GoalEnv,
     policy: Policy,
@@ -77,10 +199,8 @@ def collect(
     key: jax.Array,
     switch_every: int = 0,
 ) -> Episodes:
-    """Runs `num_envs` episodes in parallel; env i starts with curriculum goal i mod K.
-
-    A scan over the H steps of a step vmapped over envs (rather than a vmap of per-env
-    scans), so that a step where no env switches goals skips the goal choice.
+    """Runs `num_envs` training episodes in parallel; env i starts with curriculum goal
+    i mod K and switches goals after success (`run` with `next_goal`).
 
     Args:
       env: the environment.
@@ -96,38 +216,14 @@ def collect(
     """
     k = curriculum_goals.shape[0]
     goals = curriculum_goals[jnp.arange(num_envs) % k]
-    split = jax.vmap(jax.random.split)
-    key_reset, key_steps = jnp.moveaxis(split(jax.random.split(key, num_envs)), 1, 0)
-    states = jax.vmap(env.reset_with_goal)(key_reset, goals)
-    # (H, n_envs) step keys: env i's stream is the same as in a per-env episode loop.
-    step_keys = jnp.moveaxis(
-        jax.vmap(lambda kk: jax.random.split(kk, env.horizon))(key_steps), 1, 0
+    first, (obs, ag, action, goal, success) = run(
+        env, policy, goals, key, record=_transition, next_goal=next_goal, switch_every=switch_every
     )
-
-    def step(carry, keys):
-        states, walking, since = carry  # (n,) bool past the first success, (n,) goal age
-        key_act, key_goal = jnp.moveaxis(split(keys), 1, 0)
-        active_goals = states.goal
-        actions = jax.vmap(policy)(states.obs, active_goals, key_act)
-        states = jax.vmap(env.step)(states, actions)
-        reached = states.success
-        # SPEC §6: after success, pick a new goal for the following steps; OUTPACE also
-        # every `switch_every` steps of the random walk, so no goal holds the agent long.
-        due = walking & (since + 1 >= switch_every) if switch_every > 0 else False
-        switch = reached | due
-        states = _switch_goals(env, next_goal, states, switch, key_goal)
-        out = (states.obs, states.achieved_goal, actions, active_goals, reached)
-        return (states, walking | reached, jnp.where(switch, 0, since + 1)), out
-
-    carry = (states, jnp.zeros(num_envs, bool), jnp.zeros(num_envs, jnp.int32))
-    _, (obs, ag, actions, active, success) = jax.lax.scan(step, carry, step_keys)
-    env_major = lambda x: jnp.moveaxis(x, 0, 1)  # noqa: E731  (H, n, ...) -> (n, H, ...)
-    success = env_major(success)
     return Episodes(
-        obs=jnp.concatenate([states.obs[:, None], env_major(obs)], axis=1),
-        achieved_goal=jnp.concatenate([states.achieved_goal[:, None], env_major(ag)], axis=1),
-        action=env_major(actions),
-        goal=env_major(active),
+        obs=_prepend(first.obs, obs),
+        achieved_goal=_prepend(first.achieved_goal, ag),
+        action=action,
+        goal=goal,
         success=success,
         walk_start=walk_start(success),
     )
@@ -138,22 +234,52 @@ def evaluate(env: GoalEnv, policy: Policy, episodes_per_mode: int, key: jax.Arra
 
     For each mode point, `episodes_per_mode` episodes from the start state (with its reset
     noise), goal = the mode point exactly, no goal switching; success = within the
-    radius at any step. `policy` should be deterministic (tanh of the mean).
+    radius at any step. Episode i (mode i // episodes_per_mode) uses `split(key, n)[i]`.
+    `policy` should be deterministic (tanh of the mean): then its key does not matter.
     """
     modes = jnp.asarray(env.goal_points)
     goals = jnp.repeat(modes, episodes_per_mode, axis=0)  # (n_modes * n, goal_dim)
-
-    def episode(goal, key):
-        key_reset, key_steps = jax.random.split(key)
-        state = env.reset_with_goal(key_reset, goal)
-
-        def step(state, key):
-            state = env.step(state, policy(state.obs, state.goal, key))
-            return state, state.success
-
-        _, success = jax.lax.scan(step, state, jax.random.split(key_steps, env.horizon))
-        return success.any()
-
-    keys = jax.random.split(key, goals.shape[0])
-    hit = jax.vmap(episode)(goals, keys).astype(jnp.float32)
+    _, success = run(env, policy, goals, key, record=lambda before, action, after: after.success)
+    hit = success.any(axis=1).astype(jnp.float32)  # (n_modes * n,)
     return hit.reshape(env.n_modes, episodes_per_mode).mean(axis=1)
+
+
+def _trace_point(state: EnvState) -> Trace:
+    """The Trace fields of (a batch of) states: no full mjx.Data per step."""
+    data = state.data
+    return Trace(data.qpos, data.mocap_pos, state.goal, state.success, state.achieved_goal)
+
+
+def trajectories(
+    env: GoalEnv,
+    policy: Policy,
+    goals: jax.Array,
+    key: jax.Array,
+    *,
+    steps: int | None = None,
+    next_goal: GoalSwitch | None = None,
+    switch_every: int = 0,
+) -> Trace:
+    """The states of one episode per goal (rendering, the demo), reset state first.
+
+    Args:
+      goals: (n, goal_dim) the goal of each episode.
+      steps: env steps per episode (default: the horizon H).
+      next_goal, switch_every: goal switching as in `collect` (default: none). A state's
+        goal is the one pursued when it was reached (a switch shows from the next state).
+      env, policy, key: as in `run`; the same goals and key give `collect`'s episodes.
+    Returns:
+      Trace with leading axes (n, steps + 1).
+    """
+    goals = jnp.asarray(goals, jnp.float32)
+    first, rest = run(
+        env,
+        policy,
+        goals,
+        key,
+        record=lambda before, action, after: _trace_point(after),
+        steps=steps,
+        next_goal=next_goal,
+        switch_every=switch_every,
+    )
+    return jax.tree.map(_prepend, _trace_point(first), rest)

@@ -7,13 +7,15 @@ objective J(alpha) (Eq. 18); the tanh log-density is Eq. 21 of arXiv 1801.01290.
 
 Schedule (paper Table 2): the critic is updated every update; the actor and log alpha
 every `actor_update_every` updates; the target critic by Polyak averaging every
-`target_update_every` updates. Two equivalent forms are provided:
-  * `update_sac`: one update; the actor step is a `lax.cond` on the update counter. Under
-    `jax.vmap` over seeds the counter is batched and the cond becomes a select, so the
-    actor update is computed (and discarded) on every update: correct, up to ~1.5x slower.
-  * `update_sac_block`: `block_size(cfg)` consecutive updates unrolled statically (e.g.
-    critic; critic + actor + target), no cond at all; equal to `block_size` calls of
-    `update_sac` with keys `jax.random.split(key, block_size)`. Prefer it in the trainer.
+`target_update_every` updates. `update_sac_block` runs `block_size(cfg)` consecutive
+updates unrolled statically (e.g. critic; critic + actor + target), so no `lax.cond` on
+the update counter is needed: under `jax.vmap` over seeds a cond would become a select
+and compute the actor update on every update (up to ~1.5x slower).
+
+Hyperparameters that keep shapes (learning rates, tau, the initial alpha) are a pytree,
+`SACHyperparams`, that the update reads as traced values rather than constants baked into
+the compiled program, so a sweep can vmap over them; the static `Optimizers` are Adam
+without its learning rate, which the update applies from the pytree.
 """
 
 from __future__ import annotations
@@ -23,6 +25,7 @@ from typing import NamedTuple
 
 import jax
 import jax.numpy as jnp
+import numpy as np
 import optax
 from flax import struct
 
@@ -46,17 +49,42 @@ class SACState:
     actor_loss: jax.Array  # () float32 latest actor loss (logged on critic-only updates)
 
 
+@struct.dataclass
+class SACHyperparams:
+    """SAC's shape-keeping hyperparameters as traced values (leading seed axis when vmapped)."""
+
+    actor_lr: jax.Array  # () float32 Adam step size of the actor (Table 2: 1e-4)
+    critic_lr: jax.Array  # () float32 Adam step size of the critic
+    alpha_lr: jax.Array  # () float32 Adam step size of log alpha
+    tau: jax.Array  # () float32 Polyak rate of the target critic
+    init_log_alpha: jax.Array  # () float32 log of the initial temperature (used by init)
+
+
+def hyperparams(cfg: SACConfig) -> SACHyperparams:
+    """The config's values; log alpha is taken on the host, in double precision."""
+    f32 = lambda x: np.float32(x)  # noqa: E731
+    return SACHyperparams(
+        actor_lr=f32(cfg.actor_lr),
+        critic_lr=f32(cfg.critic_lr),
+        alpha_lr=f32(cfg.alpha_lr),
+        tau=f32(cfg.tau),
+        init_log_alpha=f32(math.log(cfg.init_alpha)),
+    )
+
+
 class Optimizers(NamedTuple):
-    """The three Adam optimisers (static; their states live in SACState)."""
+    """The three optimisers (static; their states live in SACState): Adam's moment
+    scaling, to which `_apply` adds the step size from `SACHyperparams`."""
 
     actor: optax.GradientTransformation
     critic: optax.GradientTransformation
     alpha: optax.GradientTransformation
 
 
-def make_optimizers(cfg: SACConfig) -> Optimizers:
-    """Adam with the learning rates of paper Table 2 (1e-4 each)."""
-    return Optimizers(optax.adam(cfg.actor_lr), optax.adam(cfg.critic_lr), optax.adam(cfg.alpha_lr))
+def make_optimizers() -> Optimizers:
+    """Adam (optax defaults) without its learning rate: `optax.adam(lr)` is this followed
+    by a scaling by -lr, which `_apply` does with a traced lr (bitwise the same)."""
+    return Optimizers(*(optax.scale_by_adam() for _ in range(3)))
 
 
 def target_entropy(cfg: SACConfig, action_dim: int) -> float:
@@ -69,14 +97,15 @@ def block_size(cfg: SACConfig) -> int:
     return math.lcm(cfg.actor_update_every, cfg.target_update_every)
 
 
-def init_sac(cfg: SACConfig, nets: networks.SACNetworks, env, key: jax.Array) -> SACState:
-    """Fresh parameters: target critic = critic, alpha = cfg.init_alpha."""
+def init_sac(
+    nets: networks.SACNetworks, opt: Optimizers, env, hp: SACHyperparams, key: jax.Array
+) -> SACState:
+    """Fresh parameters: target critic = critic, log alpha = hp.init_log_alpha."""
     key_actor, key_critic = jax.random.split(key)
     feats = jnp.zeros((1, networks.feature_dim(env)), jnp.float32)
     actor_params = nets.actor.init(key_actor, feats)
     critic_params = nets.critic.init(key_critic, feats, jnp.zeros((1, env.action_dim)))
-    log_alpha = jnp.asarray(math.log(cfg.init_alpha), jnp.float32)
-    opt = make_optimizers(cfg)
+    log_alpha = jnp.asarray(hp.init_log_alpha, jnp.float32)
     return SACState(
         actor_params=actor_params,
         critic_params=critic_params,
@@ -161,12 +190,14 @@ def alpha_loss(log_alpha: jax.Array, log_prob: jax.Array, entropy_target: float)
 # --- the update -------------------------------------------------------------------------
 
 
-def _apply(opt: optax.GradientTransformation, grads, opt_state, params):
-    updates, opt_state = opt.update(grads, opt_state, params)
+def _apply(opt: optax.GradientTransformation, lr: jax.Array, grads, opt_state, params):
+    """One Adam step of size lr: params - lr * adam_direction(grads)."""
+    direction, opt_state = opt.update(grads, opt_state, params)
+    updates = jax.tree.map(lambda d: -lr * d, direction)
     return optax.apply_updates(params, updates), opt_state
 
 
-def _critic_step(cfg: SACConfig, nets, state: SACState, feats, next_feats, batch: Batch, key):
+def _critic_step(cfg: SACConfig, nets, opt, hp, state: SACState, feats, next_feats, batch, key):
     """Soft TD target, then one Adam step on J_Q."""
     alpha = jnp.exp(state.log_alpha)
     y, next_log_prob = soft_td_target(
@@ -176,7 +207,7 @@ def _critic_step(cfg: SACConfig, nets, state: SACState, feats, next_feats, batch
     grad_fn = jax.value_and_grad(critic_loss, has_aux=True)
     (loss, q), grads = grad_fn(state.critic_params, nets, feats, batch.action, y)
     params, opt_state = _apply(
-        make_optimizers(cfg).critic, grads, state.critic_opt, state.critic_params
+        opt.critic, hp.critic_lr, grads, state.critic_opt, state.critic_params
     )
     metrics = {
         "sac/critic_loss": loss,
@@ -188,26 +219,27 @@ def _critic_step(cfg: SACConfig, nets, state: SACState, feats, next_feats, batch
     return state.replace(critic_params=params, critic_opt=opt_state), metrics
 
 
-def _actor_step(cfg: SACConfig, nets, state: SACState, feats, action_dim: int, key) -> SACState:
+def _actor_step(cfg: SACConfig, nets, opt, hp, state: SACState, feats, action_dim: int, key):
     """One Adam step on J_pi (with the just-updated critic), then one on J(alpha)."""
-    opt = make_optimizers(cfg)
     alpha = jnp.exp(state.log_alpha)
     grad_fn = jax.value_and_grad(actor_loss, has_aux=True)
     (loss, log_prob), grads = grad_fn(
         state.actor_params, nets, state.critic_params, alpha, feats, key
     )
-    actor_params, actor_opt = _apply(opt.actor, grads, state.actor_opt, state.actor_params)
+    actor_params, actor_opt = _apply(
+        opt.actor, hp.actor_lr, grads, state.actor_opt, state.actor_params
+    )
     state = state.replace(actor_params=actor_params, actor_opt=actor_opt, actor_loss=loss)
     if not cfg.learn_alpha:
         return state
     # The alpha step reuses log pi(a~|s) of the actor step (pre-update actor).
     a_grads = jax.grad(alpha_loss)(state.log_alpha, log_prob, target_entropy(cfg, action_dim))
-    log_alpha, alpha_opt = _apply(opt.alpha, a_grads, state.alpha_opt, state.log_alpha)
+    log_alpha, alpha_opt = _apply(opt.alpha, hp.alpha_lr, a_grads, state.alpha_opt, state.log_alpha)
     return state.replace(log_alpha=log_alpha, alpha_opt=alpha_opt)
 
 
 def _polyak(state: SACState, tau: jax.Array | float) -> SACState:
-    """Target <- (1 - tau) target + tau critic; tau = 0 leaves it bit-for-bit unchanged."""
+    """Target <- (1 - tau) target + tau critic."""
     target = jax.tree.map(
         lambda t, p: t + tau * (p - t), state.target_critic_params, state.critic_params
     )
@@ -227,51 +259,32 @@ def _finish(state: SACState, metrics: Metrics) -> tuple[SACState, Metrics]:
     return state.replace(step=state.step + 1), metrics
 
 
-def update_sac(
-    cfg: SACConfig, nets: networks.SACNetworks, state: SACState, batch: Batch, env, key: jax.Array
-) -> tuple[SACState, Metrics]:
-    """One SAC update: critic always; actor + alpha and target on their cadences.
-
-    The actor step runs under `lax.cond` on the counter (a select under vmap, see the
-    module docstring); the target step uses tau or 0, which needs no cond.
-
-    Args:
-      cfg: SAC config (static).
-      nets: the modules.
-      state: SAC state.
-      batch: a Batch with leading axis B (raw obs and goals).
-      env: the env (its normalize_obs / normalize_goal build the features).
-      key: PRNG key.
-    Returns:
-      The new state and flat metrics "sac/*" (scalars).
-    """
-    key_critic, key_actor = jax.random.split(key)
-    feats, next_feats = _features(env, batch)
-    state, metrics = _critic_step(cfg, nets, state, feats, next_feats, batch, key_critic)
-    n = state.step + 1  # this update's 1-based index
-    state = jax.lax.cond(
-        n % cfg.actor_update_every == 0,
-        lambda s: _actor_step(cfg, nets, s, feats, env.action_dim, key_actor),
-        lambda s: s,
-        state,
-    )
-    tau = jnp.where(n % cfg.target_update_every == 0, cfg.tau, 0.0)
-    return _finish(_polyak(state, tau), metrics)
-
-
 def update_sac_block(
-    cfg: SACConfig, nets: networks.SACNetworks, state: SACState, batches: Batch, env, key: jax.Array
+    cfg: SACConfig,
+    nets: networks.SACNetworks,
+    opt: Optimizers,
+    hp: SACHyperparams,
+    state: SACState,
+    batches: Batch,
+    env,
+    key: jax.Array,
 ) -> tuple[SACState, Metrics]:
     """`block_size(cfg)` SAC updates, statically unrolled: no cond, cheap under vmap.
 
-    Equals `block_size(cfg)` calls of `update_sac` with keys `jax.random.split(key, n)`,
-    provided state.step is a multiple of block_size (true when only blocks are used).
+    Update i (1-based within the block) steps the critic; the actor and alpha when i is a
+    multiple of `actor_update_every`; the target when i is one of `target_update_every`.
+    Blocks keep state.step a multiple of block_size, so these are the global cadences.
 
     Args:
-      batches: a Batch whose leaves have a leading axis block_size(cfg), then B.
-      (others as `update_sac`)
+      cfg: SAC config (static); nets, opt: the modules and optimisers; hp: the traced
+        hyperparameters.
+      state: SAC state.
+      batches: a Batch whose leaves have a leading axis block_size(cfg), then B (raw obs
+        and goals).
+      env: the env (its normalize_obs / normalize_goal build the features).
+      key: PRNG key, split into one key per update.
     Returns:
-      The new state and the metrics averaged over the block.
+      The new state and the flat "sac/*" metrics averaged over the block.
     """
     n = block_size(cfg)
     keys = jax.random.split(key, n)
@@ -280,11 +293,13 @@ def update_sac_block(
         batch = jax.tree.map(lambda x, i=i: x[i], batches)
         key_critic, key_actor = jax.random.split(keys[i])
         feats, next_feats = _features(env, batch)
-        state, metrics = _critic_step(cfg, nets, state, feats, next_feats, batch, key_critic)
+        state, metrics = _critic_step(
+            cfg, nets, opt, hp, state, feats, next_feats, batch, key_critic
+        )
         if (i + 1) % cfg.actor_update_every == 0:
-            state = _actor_step(cfg, nets, state, feats, env.action_dim, key_actor)
+            state = _actor_step(cfg, nets, opt, hp, state, feats, env.action_dim, key_actor)
         if (i + 1) % cfg.target_update_every == 0:
-            state = _polyak(state, cfg.tau)
+            state = _polyak(state, hp.tau)
         state, metrics = _finish(state, metrics)
         all_metrics.append(metrics)
     return state, jax.tree.map(lambda *xs: jnp.mean(jnp.stack(xs)), *all_metrics)

@@ -21,6 +21,7 @@ from typing import NamedTuple
 import flax.linen as nn
 import jax
 import jax.numpy as jnp
+import numpy as np
 import optax
 from flax import struct
 
@@ -68,7 +69,27 @@ class ClassifierState:
 
     params: dict  # flax params of `Classifier` (trunk and heads)
     opt_state: optax.OptState  # Adam state
-    step: jax.Array  # () int32 updates done
+
+
+@struct.dataclass
+class ClassifierHyperparams:
+    """The classifier's shape-keeping hyperparameters as traced values (leading seed axis
+    when vmapped), so that a sweep can vmap over them."""
+
+    lr: jax.Array  # () float32 Adam step size (Table 2: 1e-3)
+    diversity_weight: jax.Array  # () float32 lambda of Eq. 5 (Table 3)
+    marginal_weight: jax.Array  # () float32 mu of the marginal term (DEVIATIONS.md)
+    eps: jax.Array  # () float32 half-width c of the positives' noise (Table 3 eps)
+
+
+def hyperparams(cfg: ClassifierConfig) -> ClassifierHyperparams:
+    """The config's values as float32 scalars."""
+    return ClassifierHyperparams(
+        lr=np.float32(cfg.lr),
+        diversity_weight=np.float32(cfg.diversity_weight),
+        marginal_weight=np.float32(cfg.marginal_weight),
+        eps=np.float32(cfg.eps),
+    )
 
 
 class ClassifierBatch(NamedTuple):
@@ -92,22 +113,19 @@ def make_classifier(cfg: ClassifierConfig, env: GoalEnv) -> Classifier:
     )
 
 
-def make_optimizer(cfg: ClassifierConfig) -> optax.GradientTransformation:
-    """Adam with the classifier learning rate (Table 2)."""
-    return optax.adam(cfg.lr)
+def make_optimizer() -> optax.GradientTransformation:
+    """Adam (optax defaults) without its learning rate, which `update_classifier` applies
+    from `ClassifierHyperparams` (`optax.adam(lr)` is this, then a scaling by -lr)."""
+    return optax.scale_by_adam()
 
 
 def init_classifier(
-    cfg: ClassifierConfig, net: Classifier, goal_dim: int, key: jax.Array
+    net: Classifier, opt: optax.GradientTransformation, goal_dim: int, key: jax.Array
 ) -> ClassifierState:
     """Fresh parameters and Adam state."""
     dummy = jnp.zeros((1, goal_dim), jnp.float32)
     params = net.init(key, dummy, dummy)
-    return ClassifierState(
-        params=params,
-        opt_state=make_optimizer(cfg).init(params),
-        step=jnp.zeros((), jnp.int32),
-    )
+    return ClassifierState(params=params, opt_state=opt.init(params))
 
 
 def head_probs(net: Classifier, params: dict, x: jax.Array, g: jax.Array) -> jax.Array:
@@ -219,17 +237,23 @@ def marginal_kl(probs: jax.Array, prior: float, group: int = 1) -> jax.Array:
 
 
 def loss(
-    cfg: ClassifierConfig, net: Classifier, params: dict, batch: ClassifierBatch
+    cfg: ClassifierConfig,
+    net: Classifier,
+    hp: ClassifierHyperparams,
+    params: dict,
+    batch: ClassifierBatch,
 ) -> tuple[jax.Array, Metrics]:
     """D2C Eq. 5 plus DivDis's marginal term.
 
     Sum over heads of the BCEs (means over the batch)
-    + lambda * (mean pair MI + mu * marginal KL), mu = cfg.marginal_weight (`marginal_kl`,
-    DEVIATIONS.md). Both terms are the diversification, so lambda = 0 turns off both.
+    + lambda * (mean pair MI + mu * marginal KL), lambda = hp.diversity_weight, mu =
+    hp.marginal_weight (`marginal_kl`, DEVIATIONS.md). Both terms are the
+    diversification, so lambda = 0 turns off both.
 
     Args:
-      cfg: classifier config (lambda = cfg.diversity_weight).
+      cfg: classifier config (the marginal term's prior and group).
       net: the classifier module.
+      hp: the traced hyperparameters (lambda, mu).
       params: its parameters.
       batch: negatives, positives, uniform points and their shared conditioning goals.
     Returns:
@@ -248,8 +272,8 @@ def loss(
     uni_probs = jax.nn.sigmoid(uni_logits)
     mi = mean_pairwise_mi(uni_probs)
     marginal = marginal_kl(uni_probs, cfg.marginal_prior, cfg.marginal_group)
-    diversity = mi + cfg.marginal_weight * marginal
-    total = bce_neg + bce_pos + cfg.diversity_weight * diversity
+    diversity = mi + hp.marginal_weight * marginal
+    total = bce_neg + bce_pos + hp.diversity_weight * diversity
     metrics = {
         "classifier/loss": total,
         "classifier/bce_neg": bce_neg,
@@ -261,14 +285,21 @@ def loss(
 
 
 def update_classifier(
-    cfg: ClassifierConfig, net: Classifier, state: ClassifierState, batch: ClassifierBatch
+    cfg: ClassifierConfig,
+    net: Classifier,
+    opt: optax.GradientTransformation,
+    hp: ClassifierHyperparams,
+    state: ClassifierState,
+    batch: ClassifierBatch,
 ) -> tuple[ClassifierState, Metrics]:
-    """One Adam step on Eq. 5 (deterministic: all sampling is in `sample_batch`)."""
-    grads, metrics = jax.grad(lambda p: loss(cfg, net, p, batch), has_aux=True)(state.params)
-    updates, opt_state = make_optimizer(cfg).update(grads, state.opt_state, state.params)
+    """One Adam step of size hp.lr on Eq. 5 (deterministic: all sampling is in
+    `sample_batch`)."""
+    grad_fn = jax.grad(lambda p: loss(cfg, net, hp, p, batch), has_aux=True)
+    grads, metrics = grad_fn(state.params)
+    direction, opt_state = opt.update(grads, state.opt_state, state.params)
+    updates = jax.tree.map(lambda d: -hp.lr * d, direction)
     params = optax.apply_updates(state.params, updates)
-    new_state = state.replace(params=params, opt_state=opt_state, step=state.step + 1)
-    return new_state, metrics
+    return state.replace(params=params, opt_state=opt_state), metrics
 
 
 # --- batches -------------------------------------------------------------------------
@@ -312,16 +343,17 @@ def sample_conditioning_goals(
 
 
 def positive_examples(
-    cfg: ClassifierConfig, env: GoalEnv, cond_goals: jax.Array, key: jax.Array
+    env: GoalEnv, cond_goals: jax.Array, c: jax.Array | float, key: jax.Array
 ) -> jax.Array:
     """g + eps, eps ~ U[-c, c]^d * goal_noise_mask (Eq. 5 positives): (B, d) -> (B, d)."""
-    eps = jax.random.uniform(key, cond_goals.shape, minval=-cfg.eps, maxval=cfg.eps)
+    eps = jax.random.uniform(key, cond_goals.shape, minval=-c, maxval=c)
     return cond_goals + eps * jnp.asarray(env.goal_noise_mask, cond_goals.dtype)
 
 
 def sample_batch(
     cfg: ClassifierConfig,
     env: GoalEnv,
+    hp: ClassifierHyperparams,
     buffer_states: jax.Array,
     desired_examples: jax.Array,
     key: jax.Array,
@@ -331,6 +363,7 @@ def sample_batch(
     Args:
       cfg: classifier config.
       env: the environment.
+      hp: the traced hyperparameters (the positives' noise eps).
       buffer_states: (B, d) achieved goals phi(s) sampled from the replay buffer; they
         are the negatives and set the batch size B.
       desired_examples: (n_modes, n_per_mode, d) desired examples (used by D_G only for
@@ -344,7 +377,7 @@ def sample_batch(
     cond = sample_conditioning_goals(cfg, env, key_g, n, buffer_states, desired_examples)
     return ClassifierBatch(
         negatives=buffer_states,
-        positives=positive_examples(cfg, env, cond, key_eps),
+        positives=positive_examples(env, cond, hp.eps, key_eps),
         uniform=env.sample_uniform_goals(key_u, n),
         cond_goals=cond,
         uniform_goals=grouped_goals(cond, cfg.marginal_group),

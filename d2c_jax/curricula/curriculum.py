@@ -166,12 +166,9 @@ def warmup_goals(env: GoalEnv, start_goal: jax.Array, n_slots: int, key: jax.Arr
     return env.clip_goal(start_goal + noise * env.success_radius * _noise_mask(env))
 
 
-def pool_full(pool_valid: jax.Array, pool_size: int) -> jax.Array:
-    """() bool: all P pool entries hold episodes; pool_valid is (P,) bool or a () count."""
-    pool_valid = jnp.asarray(pool_valid)
-    if pool_valid.ndim == 1:
-        return jnp.all(pool_valid)
-    return pool_valid >= pool_size
+def pool_full(pool_valid: jax.Array) -> jax.Array:
+    """() bool: all P pool entries hold episodes; pool_valid is (P,) bool."""
+    return jnp.all(pool_valid)
 
 
 # The metrics `propose` returns (held between matchings in the TrainState).
@@ -180,6 +177,7 @@ METRIC_KEYS = (
     "curriculum/slot_distance",
     "curriculum/matched_cost",
     "curriculum/pool_full",
+    "curriculum/auction_converged",
 )
 
 # Cost of a pool trajectory that may not be matched (barely moved): above any real cost,
@@ -197,16 +195,15 @@ def propose(
     start_goal: jax.Array,
     key: jax.Array,
     value_fn: ValueFn | None = None,
-    gamma: float = 0.99,
     *,
-    eps: float,
+    gamma: float,
     pool_obs: jax.Array | None = None,
     goal_value_fn: GoalValueFn | None = None,
 ) -> tuple[jax.Array, Metrics]:
     """K curriculum goals (SPEC §5, Eq. 6-7).
 
     Variant "d2c": match slots to distinct pool trajectories by the auction on Eq. 7 costs;
-    goal j = matched candidate + U[-c, c] * mask (c = eps), clipped. "value": the same
+    goal j = matched candidate + U[-c, c] * mask (c = cfg.goal_noise), clipped. "value": the same
     with w' = w - (1 - gamma) V(s0, phi(s)). "none": the slots themselves (fresh desired
     examples). With `cfg.goal_value_weight` beta > 0, each edge cost also loses
     beta (1 - gamma) V(s, g_j+) (`cost_matrix`). Until all pool entries are valid,
@@ -217,27 +214,28 @@ def propose(
     cost, which the auction returns at once.
 
     Args:
-      cfg: curriculum config (K = cfg.n_slots).
+      cfg: curriculum config (K = cfg.n_slots; the goal noise c = cfg.goal_noise).
       env: the environment.
       net: classifier module; params: its parameters.
       pool_ag: (P, T, d) achieved goals of the pool episodes (recent, then archived).
-      pool_valid: (P,) bool, or a () count of the episodes in the pool (traced).
+      pool_valid: (P,) bool, which pool entries hold episodes.
       start_goal: (d,) phi of the start state (warm-up centre), computed on the host.
       key: PRNG key.
       value_fn: V over goals (P, T', d) -> (P, T'); required by variant "value".
-      gamma: SAC discount, for the (1 - gamma) scale of the "+Value" ablation.
-      eps: half-width c of the goal noise (Table 3 'eps', the classifier's eps).
+      gamma: SAC discount (`SACConfig.gamma`), for the (1 - gamma) scale of the value
+        terms ("+Value" and beta).
       pool_obs: (P, T, o) observations of the pool states; needed when beta > 0.
       goal_value_fn: V(s, g) over observations and one goal; needed when beta > 0.
     Returns:
       goals (K, d) and metrics {"curriculum/distance" (paper §5.1, `matched_distance`),
       "curriculum/slot_distance" (each goal to its own slot), "curriculum/matched_cost",
-      "curriculum/pool_full"}.
+      "curriculum/pool_full", "curriculum/auction_converged"}.
     """
     key_slots, key_noise, key_warm = jax.random.split(key, 3)
     slots = goal_slots(env, cfg.n_slots, key_slots)  # (K, d)
     if cfg.variant == "none":
         goals, full, matched_cost = slots, jnp.ones((), bool), jnp.zeros(())
+        converged = jnp.ones((), bool)
     else:
         if cfg.variant == "value" and value_fn is None:
             raise ValueError("curriculum variant 'value' needs a value_fn")
@@ -254,10 +252,12 @@ def propose(
         )  # fmt: skip
         if cfg.pool_min_move > 0:
             cost = jnp.where(moved(pool_ag, cfg.pool_min_move)[None], cost, _UNUSABLE_COST)
-        cols = matching.auction(cost, max_iters=cfg.auction_max_iters)  # (K,) distinct
+        solved = matching.auction_solve(cost, max_iters=cfg.auction_max_iters)
+        cols, converged = solved.assignment, solved.converged  # (K,) distinct columns
         rows = jnp.arange(cfg.n_slots)
-        matched = candidates[rows, cols] + _uniform_noise(env, key_noise, slots.shape, eps)
-        full = pool_full(pool_valid, pool_ag.shape[0])
+        noise = _uniform_noise(env, key_noise, slots.shape, cfg.goal_noise)  # SPEC §5's eps
+        matched = candidates[rows, cols] + noise
+        full = pool_full(pool_valid)
         warm = warmup_goals(env, start_goal, cfg.n_slots, key_warm)
         goals = jnp.where(full, env.clip_goal(matched), warm)
         matched_cost = jnp.where(full, cost[rows, cols].mean(), 0.0)
@@ -267,6 +267,9 @@ def propose(
         "curriculum/slot_distance": goal_distance(goals, slots).mean(),
         "curriculum/matched_cost": matched_cost,
         "curriculum/pool_full": full.astype(jnp.float32),
+        # 0 when the auction hit auction_max_iters (its assignment was then completed
+        # greedily): a matching that is not optimal must show.
+        "curriculum/auction_converged": converged.astype(jnp.float32),
     }
     return goals, metrics
 

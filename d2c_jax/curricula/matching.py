@@ -35,6 +35,8 @@ from typing import NamedTuple
 import jax
 import jax.numpy as jnp
 
+from d2c_jax.config import CurriculumConfig
+
 # ε-scaling schedule (Bertsekas 1988, §4): the first phase runs at this fraction of
 # the cost range, and each later phase divides ε by _EPS_DIVISOR. Prices are kept
 # between phases, which is what makes the late, small-ε phases short.
@@ -49,7 +51,8 @@ _EPS_FLOOR_ULPS = 16.0
 _MAX_BIDDERS = 64
 _BIDDER_FRACTION = 8
 # Default cap on bidding rounds over all phases: far above what any test problem uses.
-_DEFAULT_MAX_ITERS = 100_000
+# The curriculum config's default, so that the number is written once.
+_DEFAULT_MAX_ITERS = CurriculumConfig.auction_max_iters
 
 
 def _bidders(k: int) -> int:
@@ -213,9 +216,10 @@ def auction_solve(
       eps_final: tolerance per row, in cost units; the total cost is within
         K·eps_final of the optimum. Default 1e-4 × (max − min of cost). Values below
         about 4e-6 × the range are raised to it (float32 price resolution).
-      max_iters: cap on bidding rounds over all ε phases (default 100 000). When it
-        is hit, unassigned rows take the cheapest unused columns in row order, so the
-        assignment is still valid, and `converged` is False.
+      max_iters: cap on bidding rounds over all ε phases (default
+        `CurriculumConfig.auction_max_iters`). When it is hit, unassigned rows take the
+        cheapest unused columns in row order, so the assignment is still valid, and
+        `converged` is False.
 
     Returns:
       AuctionResult: `assignment` (K,) int32 distinct columns, `prices` (P,) column
@@ -285,7 +289,7 @@ def auction(
     Args:
       cost: (K, P) costs, K ≤ P.
       eps_final: per-row tolerance in cost units (default 1e-4 × the cost range).
-      max_iters: cap on bidding rounds (default 100 000).
+      max_iters: cap on bidding rounds (default `CurriculumConfig.auction_max_iters`).
 
     Returns:
       (K,) int32 distinct columns; total cost within K·eps_final of the optimum.

@@ -188,15 +188,16 @@ def enable_compilation_cache() -> None:
 
 def main(argv: list[str] | None = None) -> int:
     """Entry point of train.py; returns the exit status."""
-    from d2c_jax.training import agent as trainer
+    # Imported here: bad flags are refused before JAX, MuJoCo and the package load.
+    from d2c_jax.training import loop
 
     enable_compilation_cache()
     try:
         cfg, out, resume = parse_args(sys.argv[1:] if argv is None else argv, notify=print)
-        return trainer.train(cfg, out, resume=resume)
+        return loop.train(cfg, out, resume=resume)
     except UsageError as err:
         print(f"error: {err}", file=sys.stderr)
         return 2
-    except trainer.RunError as err:
+    except loop.RunError as err:
         print(f"error: {err}", file=sys.stderr)
         return err.status

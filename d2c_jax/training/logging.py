@@ -48,6 +48,12 @@ class MetricsWriter:
     def close(self) -> None:
         self._file.close()
 
+    def __enter__(self) -> MetricsWriter:
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
 
 def truncate_metrics(
     path: str | pathlib.Path, last_iteration: int, strip_last: tuple[str, ...] = ()

@@ -1,91 +1,29 @@
-"""The host side of training: run directory, checkpoints, signals, metrics, progress, plots.
+"""The host loop of training: `train()` runs, evaluates, logs, checkpoints and draws.
 
-Everything on the device is one jitted iteration (`trainer.make_train_step`); this loop
-only calls it, evaluates, logs, checkpoints and draws. A run directory holds
-`config.json`, `metrics.jsonl`, `checkpoints/` and `plots/`.
+Everything on the device is one jitted iteration (`agent.jit_step`); this loop only calls
+it, evaluates on schedule, writes metrics rows, saves checkpoints, handles stop signals
+and draws the plots at the end. The run directory it writes is `d2c_jax.training.runs`'s.
 """
 
 from __future__ import annotations
 
 import contextlib
-import dataclasses
-import json
 import pathlib
 import signal
 import time
+from typing import NamedTuple
 
 import jax
+import jax.numpy as jnp
 import numpy as np
 from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn, TimeRemainingColumn
 
-from d2c_jax.training import checkpoint as checkpoint_lib
+import envs
+from d2c_jax import config as config_lib
+from d2c_jax.training import agent as agent_lib
 from d2c_jax.training import logging as logging_lib
-
-
-class RunError(Exception):
-    """A run that cannot start or must stop; `status` is the process exit status."""
-
-    def __init__(self, message: str, status: int):
-        super().__init__(message)
-        self.status = status
-
-
-# --- run directory ------------------------------------------------------------------
-
-
-def config_to_json(cfg) -> str:
-    """The config as pretty JSON (tuples become lists)."""
-    return json.dumps(dataclasses.asdict(cfg), indent=2, sort_keys=True)
-
-
-def prepare_run_dir(out: pathlib.Path, cfg, resume: bool) -> None:
-    """Creates or checks the run directory and writes config.json (before any compile).
-
-    Raises:
-      RunError(2): a non-empty directory without --resume, --resume with nothing to
-        resume, or --resume with a different config; or a directory that cannot be
-        created, is not a directory, or cannot be written or read (the OSError's reason).
-    """
-    out = pathlib.Path(out)
-    config_path = out / "config.json"
-    if out.exists() and not out.is_dir():
-        raise RunError(f"--out {out}: not a directory", 2)
-    if resume:
-        if not config_path.is_file():
-            raise RunError(f"nothing to resume: {out} has no config.json", 2)
-        with _run_dir_errors(out, "read config.json"):
-            try:
-                saved = json.loads(config_path.read_text())
-            except ValueError:
-                raise RunError(f"--out {out}: config.json is not valid JSON", 2) from None
-        current = json.loads(config_to_json(cfg))
-        saved.pop("total_steps", None), current.pop("total_steps", None)
-        if saved != current:
-            diff = sorted(k for k in current if saved.get(k) != current[k])
-            raise RunError(f"--resume with a config that differs from {config_path} in {diff}", 2)
-    else:
-        with _run_dir_errors(out, "read the run directory"):
-            if out.exists() and any(out.iterdir()):
-                raise RunError(
-                    f"run directory {out} is not empty; use --resume or another --out", 2
-                )
-    with _run_dir_errors(out, "create the run directory"):
-        out.mkdir(parents=True, exist_ok=True)
-        (out / "plots").mkdir(exist_ok=True)
-    with _run_dir_errors(out, "write config.json"):
-        config_path.write_text(config_to_json(cfg))
-
-
-@contextlib.contextmanager
-def _run_dir_errors(out: pathlib.Path, action: str):
-    """Turns an OSError into RunError(2): '--out DIR: cannot ACTION: REASON (PATH)'."""
-    try:
-        yield
-    except OSError as err:
-        reason = err.strerror or type(err).__name__
-        where = f" ({err.filename})" if err.filename and str(err.filename) != str(out) else ""
-        raise RunError(f"--out {out}: cannot {action}: {reason}{where}", 2) from None
-
+from d2c_jax.training import runs
+from d2c_jax.training.runs import RunError  # noqa: F401  (raised here; the CLI catches it)
 
 # --- signals --------------------------------------------------------------------------
 
@@ -128,6 +66,32 @@ def make_progress() -> Progress:
     )
 
 
+class ProgressBar:
+    """The run's task on a `make_progress` bar (hidden when quiet)."""
+
+    def __init__(self, progress: Progress, name: str, sched, start: int, quiet: bool):
+        self.progress, self.sched, self.success = progress, sched, "-"
+        self.task = progress.add_task(
+            name,
+            total=sched.total_iterations * sched.env_steps,
+            completed=start * sched.env_steps,
+            rate=0.0,
+            success="-",
+            visible=not quiet,
+        )
+
+    def update(self, iteration: int, lap: float, row: dict) -> None:
+        """Env steps done, the last iteration's rate and the latest eval success."""
+        if "eval/success" in row:
+            self.success = f"{logging_lib.mean_of(row['eval/success']):.2f}"
+        self.progress.update(
+            self.task,
+            completed=iteration * self.sched.env_steps,
+            rate=self.sched.env_steps / lap,
+            success=self.success,
+        )
+
+
 def host_metrics(metrics: dict, num_seeds: int) -> dict:
     """Device metrics (leading seed axis) to host values: scalars for one seed, else lists."""
     metrics = jax.device_get(metrics)
@@ -150,22 +114,6 @@ def check_finite(metrics: dict, iteration: int) -> None:
         )
 
 
-def open_checkpointer(out: pathlib.Path) -> checkpoint_lib.Checkpointer:
-    """The run's checkpointer (keeps the last 3)."""
-    return checkpoint_lib.Checkpointer(out / "checkpoints", max_to_keep=3)
-
-
-def restore_or_fail(ckpt: checkpoint_lib.Checkpointer, like, out: pathlib.Path):
-    """(iteration, state) of the newest checkpoint; RunError(2) when none or unreadable."""
-    step = ckpt.latest_step()
-    if step is None:
-        raise RunError(f"nothing to resume: no checkpoint in {out / 'checkpoints'}", 2)
-    try:
-        return step, ckpt.restore(step, like)
-    except checkpoint_lib.CheckpointError as err:
-        raise RunError(str(err), 2) from None
-
-
 class Stopwatch:
     """Wall-clock bookkeeping for the time/* metrics."""
 
@@ -180,3 +128,134 @@ class Stopwatch:
 
     def elapsed(self) -> float:
         return time.perf_counter() - self.start
+
+
+# --- the loop ---------------------------------------------------------------------------
+
+
+def train(cfg: config_lib.TrainConfig, out, resume: bool = False, quiet: bool = False) -> int:
+    """Runs (or resumes) training into run directory `out`; returns the exit status
+    (0, or 128 + the signal that stopped it).
+
+    Raises:
+      RunError: bad run directory or checkpoint (status 2), non-finite values (status 3).
+    """
+    out = pathlib.Path(out)
+    env = envs.make(cfg.env)
+    runs.prepare_run_dir(out, cfg, resume)  # bad input fails here, before any compile
+    agent = agent_lib.Agent(cfg, env)
+    if not quiet:
+        print(describe(cfg, agent.schedule), flush=True)
+    ckpt = runs.open_checkpointer(out)
+    try:
+        start, ts = _initial_state(agent, ckpt, out, resume)
+        clock = Stopwatch()
+        # Compiled ahead of time, so time/compile_s is apart from the first iteration.
+        steps = _Compiled(
+            train=agent_lib.jit_step(agent).lower(ts).compile(),
+            evaluate=agent_lib.jit_evaluate(agent).lower(ts, eval_keys(cfg, 0)).compile(),
+        )
+        with logging_lib.MetricsWriter(out / "metrics.jsonl") as writer:
+            status = _iterate(agent, steps, ts, start, ckpt, writer, clock, quiet)
+    finally:
+        ckpt.close()
+    runs.write_plots(out, env)
+    return status
+
+
+class _Compiled(NamedTuple):
+    """The compiled programs of a run: train(ts) and evaluate(ts, keys)."""
+
+    train: object
+    evaluate: object
+
+
+def _initial_state(agent: agent_lib.Agent, ckpt, out: pathlib.Path, resume: bool):
+    """(iterations done, TrainState): fresh, or the newest checkpoint with metrics.jsonl cut
+    back to it."""
+    ts = agent.init_seeds()
+    metrics_path = out / "metrics.jsonl"
+    if not resume:
+        metrics_path.unlink(missing_ok=True)
+        return 0, ts
+    start, ts = runs.restore_or_fail(ckpt, ts, out)
+    # A run stopped by a signal evaluated at its last iteration; an uninterrupted run
+    # evaluates there only on schedule, so drop an unscheduled evaluation.
+    strip = () if is_eval_iteration(start, agent.schedule) else ("eval/", "curriculum/goals")
+    logging_lib.truncate_metrics(metrics_path, start, strip_last=strip)
+    return start, ts
+
+
+def _iterate(agent, steps: _Compiled, ts, start: int, ckpt, writer, clock, quiet: bool) -> int:
+    """Iterations start..total (or until a stop signal); returns the exit status."""
+    cfg, sched = agent.cfg, agent.schedule
+    timing = {"time/compile_s": clock.lap()}
+    with catch_stop_signals() as stop, make_progress() as progress:
+        bar = ProgressBar(progress, cfg.env, sched, start, quiet)
+        for it in range(start, sched.total_iterations):
+            ts, metrics = steps.train(ts)
+            last = it + 1 == sched.total_iterations or stop.signal is not None
+            row = host_metrics(metrics, cfg.num_seeds)
+            check_finite(row, it + 1)
+            if is_eval_iteration(it + 1, sched) or last:
+                row.update(_evaluation(steps, ts, cfg, it + 1))
+            lap = clock.lap()
+            writer.write(_row(it + 1, sched, row, lap, clock, timing))
+            if timing and not quiet:  # the first iteration of this process
+                left = (sched.total_iterations - it - 1) * lap / 60
+                progress.console.print(f"  estimated time to finish: {left:.1f} min")
+            timing = {}
+            bar.update(it + 1, lap, row)
+            if last or (it + 1) % sched.checkpoint_every == 0:
+                ckpt.save(it + 1, ts)
+            if stop.signal is not None:
+                return 128 + stop.signal
+    return 0
+
+
+def _evaluation(steps: _Compiled, ts, cfg: config_lib.TrainConfig, iteration: int) -> dict:
+    """The evaluation metrics and the curriculum goals (first seed's for one seed)."""
+    row = host_metrics(steps.evaluate(ts, eval_keys(cfg, iteration)), cfg.num_seeds)
+    goals = jax.device_get(ts.curriculum_goals)
+    row["curriculum/goals"] = goals[0] if cfg.num_seeds == 1 else goals
+    return row
+
+
+def _row(iteration: int, sched, metrics: dict, lap: float, clock, timing: dict) -> dict:
+    """One metrics.jsonl row: counters first, then the metrics, then time/*."""
+    return {
+        "iteration": iteration,
+        "env_steps": iteration * sched.env_steps,
+        **metrics,
+        "time/iteration_s": lap,
+        "time/env_steps_per_s": sched.env_steps / lap,
+        "time/elapsed_s": clock.elapsed(),
+        **timing,
+    }
+
+
+def eval_keys(cfg: config_lib.TrainConfig, iteration: int) -> jax.Array:
+    """Evaluation keys per seed, a pure function of (seed, iteration): resume-safe."""
+    return jnp.stack(
+        [
+            jax.random.fold_in(jax.random.key(cfg.seed + i + 10_000), iteration)
+            for i in range(cfg.num_seeds)
+        ]
+    )
+
+
+def is_eval_iteration(iteration: int, sched: agent_lib.Schedule) -> bool:
+    """Scheduled evaluations (the final one is added by the loop)."""
+    return iteration % sched.eval_every == 0
+
+
+def describe(cfg: config_lib.TrainConfig, sched: agent_lib.Schedule) -> str:
+    """The run's first lines: env, preset, seeds, device, and the schedule."""
+    return (
+        f"d2c_jax: env {cfg.env}, preset {cfg.preset}, "
+        f"seeds {cfg.seed}..{cfg.seed + cfg.num_seeds - 1}"
+        f", device {jax.devices()[0].platform}:{jax.devices()[0].device_kind}\n"
+        f"  {sched.total_iterations} iterations x {sched.env_steps} env steps, "
+        f"{sched.sac_updates} SAC + {sched.classifier_updates} classifier updates each, "
+        f"warm-up {sched.warmup_iterations}, eval every {sched.eval_every}"
+    )

@@ -13,7 +13,7 @@ import dataclasses
 import typing
 from typing import Literal
 
-from d2c_jax.config import _TABLE3, TrainConfig
+from d2c_jax.config import TrainConfig
 
 
 def validate(cfg: TrainConfig) -> str | None:
@@ -282,12 +282,21 @@ def cross_field_problem(cfg: TrainConfig) -> str | None:
         )
     # The buffer holds capacity // H episode slots; each iteration stores num_envs
     # episodes and the curriculum pool reads the pool_size most recent ones.
-    horizon = _TABLE3.get(cfg.env, {}).get("H")
+    import envs  # here: the command line imports this module before it needs jax
+
+    horizon = envs.horizon(cfg.env) if cfg.env in envs.ENV_NAMES else None
     episodes = max(cfg.num_envs, cur.pool_size)
     if horizon is not None and cfg.replay.capacity < episodes * horizon:
         return (
             f"--replay.capacity must be >= {episodes * horizon} (max(--num-envs, "
             f"--curriculum.pool-size) = {episodes} episodes of {horizon} steps), "
             f"got {cfg.replay.capacity}"
+        )
+    # The archive draws distinct episodes from the buffer's capacity // H slots.
+    if horizon is not None and cur.archive_size > cfg.replay.capacity // horizon:
+        return (
+            f"--curriculum.archive-size must be <= {cfg.replay.capacity // horizon} (the "
+            f"buffer's episode slots: --replay.capacity {cfg.replay.capacity} // {horizon} "
+            f"steps), got {cur.archive_size}"
         )
     return None

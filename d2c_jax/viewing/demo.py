@@ -3,7 +3,8 @@
     python -m d2c_jax.viewing.demo --out runs/demo
 
 Writes `<out>/random_rollouts.png`. Useful to check an install: it builds every maze,
-jits a vmapped, scanned rollout and draws it.
+jits the episode loop (`rollout.trajectories`, a scan over a step vmapped over episodes)
+with a random policy and draws the paths.
 """
 
 from __future__ import annotations
@@ -16,27 +17,24 @@ import jax
 import jax.numpy as jnp
 
 import envs
+from d2c_jax.core import rollout
 from d2c_jax.viewing import plots
 
 MAZES = ("complex_maze", "medium_maze", "spiral_maze")
 
 
 def random_rollouts(env, key: jax.Array, n_episodes: int) -> jax.Array:
-    """Achieved-goal trajectories (n_episodes, H + 1, goal_dim) of a uniform random policy."""
+    """Achieved-goal trajectories (n_episodes, H + 1, goal_dim) of a uniform random policy.
 
-    def episode(key):
-        key_reset, key_act = jax.random.split(key)
-        state = env.reset(key_reset)
-
-        def body(state, k):
-            action = jax.random.uniform(k, (env.action_dim,), minval=-1.0, maxval=1.0)
-            state = env.step(state, action)
-            return state, state.achieved_goal
-
-        _, ags = jax.lax.scan(body, state, jax.random.split(key_act, env.horizon))
-        return jnp.concatenate([state.achieved_goal[None], ags])
-
-    return jax.jit(jax.vmap(episode))(jax.random.split(key, n_episodes))
+    The episode loop (`rollout.trajectories`) with `rollout.random_policy`; episode i is
+    conditioned on goal mode i mod n_modes (instead of `env.reset`'s random mode: the
+    random policy ignores its goal, and cycling covers every mode).
+    """
+    modes = jnp.asarray(env.goal_points)
+    goals = modes[jnp.arange(n_episodes) % modes.shape[0]]  # (n_episodes, goal_dim)
+    policy = rollout.random_policy(env.action_dim)
+    episodes = jax.jit(lambda goals, k: rollout.trajectories(env, policy, goals, k))
+    return episodes(goals, key).achieved_goal
 
 
 def main(argv=None) -> int:

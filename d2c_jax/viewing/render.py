@@ -1,8 +1,9 @@
 """Headless MuJoCo rendering of env states: RGB frames, goal markers, GIF/MP4 files.
 
-    python -m d2c_jax.viewing.render RUN_DIR [--out RUN_DIR/policy.gif] [--still strip.png]
-
-renders a trained run's policy reaching each goal mode (one tile per mode).
+This module only draws: cameras, markers, frames, tiles, still strips, saving pictures
+and videos, and the choice of the OpenGL backend. The episodes it draws come from the
+episode loop (`d2c_jax.core.rollout.trajectories`); `d2c_jax.training.runs.render_policy`
+(`python -m d2c_jax.render RUN_DIR`) renders a trained run's policy.
 
 Rendering is host side: each state's qpos (and mocap_pos, for the Sawyer gripper's mocap
 target) is copied into a CPU `mujoco.MjData`, `mj_forward` computes the geometry and a
@@ -21,11 +22,9 @@ a failing GL library cannot break the calling process (tests skip with its reaso
 
 from __future__ import annotations
 
-import argparse
 import copy
 import functools
 import importlib
-import json
 import math
 import os
 import pathlib
@@ -33,8 +32,6 @@ import subprocess
 import sys
 from typing import NamedTuple
 
-import jax
-import jax.numpy as jnp
 import mujoco
 import numpy as np
 
@@ -153,9 +150,12 @@ class Trajectory(NamedTuple):
 
 
 def to_trajectory(rollout) -> Trajectory:
-    """A Trajectory from an EnvState, an mjx.Data, a Trajectory or a qpos array (..., nq)."""
+    """A Trajectory (numpy) from a Trajectory, a `rollout.Trace` (any NamedTuple with its
+    fields), an EnvState, an mjx.Data or a qpos array (..., nq)."""
     if isinstance(rollout, Trajectory):
         return rollout
+    if set(Trajectory._fields) <= set(getattr(rollout, "_fields", ())):
+        return Trajectory(*(np.asarray(getattr(rollout, f)) for f in Trajectory._fields))
     if isinstance(rollout, envs.EnvState):
         data = rollout.data
         return Trajectory(
@@ -289,8 +289,8 @@ def render_frames(
 
     Args:
       env: the GoalEnv the states come from (its `mj_model` is drawn).
-      rollout: EnvState, mjx.Data, Trajectory or qpos array with any leading axes (...),
-        e.g. (T,) for one episode or (n, T) for a batch.
+      rollout: Trajectory, `rollout.Trace`, EnvState, mjx.Data or qpos array with any
+        leading axes (...), e.g. (T,) for one episode or (n, T) for a batch.
       width, height: frame size in pixels.
       camera: a mujoco.MjvCamera; default `default_camera(env, width, height)`.
       show_goal: mark each state's goal when the rollout carries goals (green; gold in
@@ -392,119 +392,6 @@ def save_video(frames: np.ndarray, path, fps: float = 20.0) -> pathlib.Path:
     return path
 
 
-# --- rollouts ---------------------------------------------------------------------------
-
-
-def run_episodes(env, policy, goals, key: jax.Array, steps: int | None = None) -> Trajectory:
-    """One episode per goal from a reset (no goal switching), with policy(obs, goal, key).
-
-    Args:
-      goals: (n, goal_dim) the goal of each episode.
-      steps: env steps per episode (default: the horizon).
-    Returns:
-      Trajectory with leading axes (n, steps + 1) (the reset state first), as numpy.
-    """
-    steps = env.horizon if steps is None else steps
-
-    def episode(goal, key):
-        key_reset, key_steps = jax.random.split(key)
-        state = env.reset_with_goal(key_reset, goal)
-
-        def step(state, k):
-            state = env.step(state, policy(state.obs, state.goal, k))
-            return state, _record(state)
-
-        _, rest = jax.lax.scan(step, state, jax.random.split(key_steps, steps))
-        return jax.tree.map(lambda a, b: jnp.concatenate([a[None], b]), _record(state), rest)
-
-    goals = jnp.asarray(goals, jnp.float32)
-    keys = jax.random.split(key, goals.shape[0])
-    out = jax.jit(jax.vmap(episode))(goals, keys)
-    return Trajectory(*(np.asarray(x) for x in out))
-
-
-def _record(state) -> tuple:
-    """The Trajectory fields of one EnvState (kept small: no full mjx.Data per step)."""
-    return (state.data.qpos, state.data.mocap_pos, state.goal, state.success, state.achieved_goal)
-
-
-def random_policy(env):
-    """policy(obs, goal, key) -> uniform random action in [-1, 1]^action_dim."""
-    return lambda obs, goal, key: jax.random.uniform(
-        key, (env.action_dim,), minval=-1.0, maxval=1.0
-    )
-
-
-# --- trained runs -----------------------------------------------------------------------
-
-
-def load_run(run_dir):
-    """(cfg, env, ts) of a run directory: config.json and the newest checkpoint.
-
-    ts is the TrainState with a leading seed axis (num_seeds,).
-
-    Raises:
-      FileNotFoundError: no config.json or no checkpoint.
-    """
-    from d2c_jax import config
-    from d2c_jax.training import agent as trainer
-    from d2c_jax.training import checkpoint
-
-    run_dir = pathlib.Path(run_dir)
-    config_path = run_dir / "config.json"
-    if not config_path.exists():
-        raise FileNotFoundError(f"{run_dir} is not a run directory: no config.json")
-    cfg = config.from_dict(config.TrainConfig, json.loads(config_path.read_text()))
-    env = envs.make(cfg.env)
-    comp = trainer.make_components(cfg, env)
-    like = trainer.init_seed_states(cfg, comp)
-    ckpt = checkpoint.Checkpointer(run_dir / "checkpoints")
-    try:
-        step = ckpt.latest_step()
-        if step is None:
-            raise FileNotFoundError(f"no checkpoint in {run_dir / 'checkpoints'}")
-        ts = ckpt.restore(step, like)
-    finally:
-        ckpt.close()
-    return cfg, env, ts
-
-
-def trained_policy(cfg, env, ts, seed_index: int = 0):
-    """The deterministic policy (tanh of the mean, as in evaluation) of one seed of ts."""
-    from d2c_jax.core import networks, sac
-
-    sac_state = jax.tree.map(lambda x: x[seed_index], ts.sac)
-    return sac.make_policy(networks.make_networks(cfg.sac, env), sac_state, env, deterministic=True)
-
-
-def render_policy(
-    run_dir,
-    out=None,
-    *,
-    seed_index: int = 0,
-    key: int = 0,
-    width: int = 240,
-    height: int = 240,
-    fps: float = 20.0,
-    still=None,
-) -> pathlib.Path:
-    """Renders a trained run's policy reaching each goal mode: one tile per mode, one video.
-
-    With `still` (a .png path), also writes `still_strip` of the same episodes: one row per
-    mode, five moments of its episode.
-
-    Returns the path written (default RUN_DIR/policy.gif).
-    """
-    cfg, env, ts = load_run(run_dir)
-    policy = trained_policy(cfg, env, ts, seed_index)
-    traj = run_episodes(env, policy, env.goal_points, jax.random.key(key))
-    frames = render_frames(env, traj, width=width, height=height)  # (n_modes, H+1, h, w, 3)
-    if still is not None:
-        save_image(still_strip(frames), still)
-    out = pathlib.Path(run_dir) / "policy.gif" if out is None else out
-    return save_video(tile(frames), out, fps=fps)
-
-
 def save_image(image: np.ndarray, path) -> pathlib.Path:
     """Writes one picture (H, W, 3) uint8 (format from the suffix, e.g. .png)."""
     iio = _imageio()
@@ -512,33 +399,3 @@ def save_image(image: np.ndarray, path) -> pathlib.Path:
     path.parent.mkdir(parents=True, exist_ok=True)
     iio.imwrite(path, np.asarray(image, np.uint8))
     return path
-
-
-def main(argv=None) -> int:
-    parser = argparse.ArgumentParser(description="Render a trained run's policy per goal mode.")
-    parser.add_argument("run_dir", help="a run directory written by train.py")
-    parser.add_argument("--out", default=None, help="video path (.gif or .mp4)")
-    parser.add_argument("--seed-index", type=int, default=0, help="which seed of a sweep")
-    parser.add_argument("--size", type=int, default=240, help="tile width and height")
-    parser.add_argument("--fps", type=float, default=20.0)
-    parser.add_argument("--still", default=None, help="also a still strip (.png): 5 moments")
-    args = parser.parse_args(argv)
-    try:
-        path = render_policy(
-            args.run_dir,
-            args.out,
-            seed_index=args.seed_index,
-            width=args.size,
-            height=args.size,
-            fps=args.fps,
-            still=args.still,
-        )
-    except (FileNotFoundError, RuntimeError) as err:
-        print(f"error: {err}", file=sys.stderr)
-        return 2
-    print(f"wrote {path}")
-    return 0
-
-
-if __name__ == "__main__":
-    sys.exit(main())

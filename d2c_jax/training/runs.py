@@ -1,0 +1,246 @@
+"""Run directories: what `train.py --out DIR` writes, and reading it back.
+
+A run directory holds `config.json`, `metrics.jsonl`, `checkpoints/` and `plots/`. This
+module creates and checks one (before anything compiles), opens its checkpoints, loads a
+trained run (config, env, newest state) and holds the two commands that read runs:
+
+    python -m d2c_jax.render RUN_DIR [--out RUN_DIR/policy.gif] [--still strip.png]
+    python -m d2c_jax.plots RUN_DIR
+"""
+
+from __future__ import annotations
+
+import argparse
+import contextlib
+import dataclasses
+import json
+import pathlib
+import sys
+
+import jax
+
+import envs
+from d2c_jax import config as config_lib
+from d2c_jax.core import networks, rollout, sac
+from d2c_jax.training import agent as agent_lib
+from d2c_jax.training import checkpoint as checkpoint_lib
+from d2c_jax.training import logging as logging_lib
+from d2c_jax.viewing import plots, render
+
+
+class RunError(Exception):
+    """A run that cannot start or must stop; `status` is the process exit status."""
+
+    def __init__(self, message: str, status: int):
+        super().__init__(message)
+        self.status = status
+
+
+# --- run directory ------------------------------------------------------------------
+
+
+def config_to_json(cfg) -> str:
+    """The config as pretty JSON (tuples become lists)."""
+    return json.dumps(dataclasses.asdict(cfg), indent=2, sort_keys=True)
+
+
+def prepare_run_dir(out: pathlib.Path, cfg, resume: bool) -> None:
+    """Creates or checks the run directory and writes config.json (before any compile).
+
+    Raises:
+      RunError(2): a non-empty directory without --resume, --resume with nothing to
+        resume, or --resume with a different config; or a directory that cannot be
+        created, is not a directory, or cannot be written or read (the OSError's reason).
+    """
+    out = pathlib.Path(out)
+    config_path = out / "config.json"
+    if out.exists() and not out.is_dir():
+        raise RunError(f"--out {out}: not a directory", 2)
+    if resume:
+        if not config_path.is_file():
+            raise RunError(f"nothing to resume: {out} has no config.json", 2)
+        with _run_dir_errors(out, "read config.json"):
+            try:
+                saved = json.loads(config_path.read_text())
+            except ValueError:
+                raise RunError(f"--out {out}: config.json is not valid JSON", 2) from None
+        # Through from_dict, so a config.json of an older version (fields since added or
+        # re-expressed, e.g. checkpoint_every in iterations) compares by meaning.
+        saved = json.loads(config_to_json(config_lib.from_dict(config_lib.TrainConfig, saved)))
+        current = json.loads(config_to_json(cfg))
+        saved.pop("total_steps", None), current.pop("total_steps", None)
+        if saved != current:
+            diff = sorted(k for k in current if saved.get(k) != current[k])
+            raise RunError(f"--resume with a config that differs from {config_path} in {diff}", 2)
+    else:
+        with _run_dir_errors(out, "read the run directory"):
+            if out.exists() and any(out.iterdir()):
+                raise RunError(
+                    f"run directory {out} is not empty; use --resume or another --out", 2
+                )
+    with _run_dir_errors(out, "create the run directory"):
+        out.mkdir(parents=True, exist_ok=True)
+        (out / "plots").mkdir(exist_ok=True)
+    with _run_dir_errors(out, "write config.json"):
+        config_path.write_text(config_to_json(cfg))
+
+
+@contextlib.contextmanager
+def _run_dir_errors(out: pathlib.Path, action: str):
+    """Turns an OSError into RunError(2): '--out DIR: cannot ACTION: REASON (PATH)'."""
+    try:
+        yield
+    except OSError as err:
+        reason = err.strerror or type(err).__name__
+        where = f" ({err.filename})" if err.filename and str(err.filename) != str(out) else ""
+        raise RunError(f"--out {out}: cannot {action}: {reason}{where}", 2) from None
+
+
+# --- checkpoints ------------------------------------------------------------------------
+
+
+def open_checkpointer(out: pathlib.Path) -> checkpoint_lib.Checkpointer:
+    """The run's checkpointer (keeps the last 3)."""
+    return checkpoint_lib.Checkpointer(out / "checkpoints", max_to_keep=3)
+
+
+def restore_or_fail(ckpt: checkpoint_lib.Checkpointer, like, out: pathlib.Path):
+    """(iteration, state) of the newest checkpoint; RunError(2) when none or unreadable."""
+    step = ckpt.latest_step()
+    if step is None:
+        raise RunError(f"nothing to resume: no checkpoint in {out / 'checkpoints'}", 2)
+    try:
+        return step, ckpt.restore(step, like)
+    except checkpoint_lib.CheckpointError as err:
+        raise RunError(str(err), 2) from None
+
+
+# --- trained runs -----------------------------------------------------------------------
+
+
+def read_config(run_dir) -> config_lib.TrainConfig:
+    """The config of a run directory (its config.json).
+
+    Raises:
+      RunError(2): no config.json, or one that is not valid JSON.
+    """
+    run_dir = pathlib.Path(run_dir)
+    config_path = run_dir / "config.json"
+    if not config_path.is_file():
+        raise RunError(f"{run_dir} is not a run directory: no config.json", 2)
+    try:
+        values = json.loads(config_path.read_text())
+    except ValueError:
+        raise RunError(f"{config_path} is not valid JSON", 2) from None
+    return config_lib.from_dict(config_lib.TrainConfig, values)
+
+
+def load_run(run_dir):
+    """(cfg, env, ts) of a run directory: config.json and the newest checkpoint.
+
+    ts is the TrainState with a leading seed axis (num_seeds,).
+
+    Raises:
+      RunError(2): no config.json, no checkpoint, or an unreadable one.
+    """
+    run_dir = pathlib.Path(run_dir)
+    cfg = read_config(run_dir)
+    env = envs.make(cfg.env)
+    ckpt = open_checkpointer(run_dir)
+    try:
+        _, ts = restore_or_fail(ckpt, agent_lib.Agent(cfg, env).init_seeds(), run_dir)
+    finally:
+        ckpt.close()
+    return cfg, env, ts
+
+
+def trained_policy(cfg, env, ts, seed_index: int = 0):
+    """The deterministic policy (tanh of the mean, as in evaluation) of one seed of ts."""
+    sac_state = jax.tree.map(lambda x: x[seed_index], ts.sac)
+    return sac.make_policy(networks.make_networks(cfg.sac, env), sac_state, env, deterministic=True)
+
+
+def write_plots(out: pathlib.Path, env) -> None:
+    """The run's plots from its metrics.jsonl: success per mode, curriculum goals over the
+    map (paper Fig. 8), curriculum distance."""
+    rows = logging_lib.read_metrics(out / "metrics.jsonl")
+    plots.success_curve(rows, env.n_modes, out / "plots" / "success.png")
+    plots.curriculum_snapshots(rows, env, out / "plots" / "curriculum.png")
+    plots.metric_curve(rows, "curriculum/distance", out / "plots" / "curriculum_distance.png")
+
+
+def render_policy(
+    run_dir,
+    out=None,
+    *,
+    seed_index: int = 0,
+    key: int = 0,
+    width: int = 240,
+    height: int = 240,
+    fps: float = 20.0,
+    still=None,
+) -> pathlib.Path:
+    """Renders a trained run's policy reaching each goal mode: one tile per mode, one video.
+
+    With `still` (a .png path), also writes `still_strip` of the same episodes: one row per
+    mode, five moments of its episode.
+
+    Returns the path written (default RUN_DIR/policy.gif).
+    """
+    cfg, env, ts = load_run(run_dir)
+    policy = trained_policy(cfg, env, ts, seed_index)
+    # One episode per mode from the episode loop (the modes as an argument, not constants).
+    episodes = jax.jit(lambda goals, k: rollout.trajectories(env, policy, goals, k))
+    trace = episodes(env.goal_points, jax.random.key(key))  # (n_modes, H + 1, ...)
+    traj = render.to_trajectory(trace)
+    frames = render.render_frames(env, traj, width=width, height=height)  # (n_modes, H+1, h, w, 3)
+    if still is not None:
+        render.save_image(render.still_strip(frames), still)
+    out = pathlib.Path(run_dir) / "policy.gif" if out is None else out
+    return render.save_video(render.tile(frames), out, fps=fps)
+
+
+def render_main(argv=None) -> int:
+    """`python -m d2c_jax.render`: exit status 0, or 2 with a one-line error."""
+    parser = argparse.ArgumentParser(description="Render a trained run's policy per goal mode.")
+    parser.add_argument("run_dir", help="a run directory written by train.py")
+    parser.add_argument("--out", default=None, help="video path (.gif or .mp4)")
+    parser.add_argument("--seed-index", type=int, default=0, help="which seed of a sweep")
+    parser.add_argument("--size", type=int, default=240, help="tile width and height")
+    parser.add_argument("--fps", type=float, default=20.0)
+    parser.add_argument("--still", default=None, help="also a still strip (.png): 5 moments")
+    args = parser.parse_args(argv)
+    try:
+        path = render_policy(
+            args.run_dir,
+            args.out,
+            seed_index=args.seed_index,
+            width=args.size,
+            height=args.size,
+            fps=args.fps,
+            still=args.still,
+        )
+    except (RunError, RuntimeError) as err:
+        print(f"error: {err}", file=sys.stderr)
+        return 2
+    print(f"wrote {path}")
+    return 0
+
+
+def plots_main(argv=None) -> int:
+    """`python -m d2c_jax.plots RUN_DIR`: redraws RUN_DIR/plots from its metrics."""
+    parser = argparse.ArgumentParser(description="Redraw a run's plots from its metrics.")
+    parser.add_argument("run_dir", help="a run directory written by train.py")
+    args = parser.parse_args(argv)
+    run_dir = pathlib.Path(args.run_dir)
+    try:
+        env = envs.make(read_config(run_dir).env)
+        if not (run_dir / "metrics.jsonl").is_file():
+            raise RunError(f"{run_dir} has no metrics.jsonl", 2)
+        (run_dir / "plots").mkdir(exist_ok=True)
+        write_plots(run_dir, env)
+    except RunError as err:
+        print(f"error: {err}", file=sys.stderr)
+        return 2
+    print(f"wrote {run_dir / 'plots'}")
+    return 0
