@@ -128,6 +128,41 @@ def test_unreadable_checkpoint_exits_2(tiny_run, tmp_path):
     assert result.stderr.splitlines()[0].startswith("error: cannot read checkpoint")
 
 
+def test_plots_command_redraws_a_run_and_refuses_a_non_run(tiny_run, tmp_path):
+    import shutil
+
+    path = tmp_path / "run"
+    shutil.copytree(tiny_run[0], path)
+    shutil.rmtree(path / "plots")
+    command = [sys.executable, "-m", "d2c_jax.plots"]
+    done = subprocess.run([*command, str(path)], capture_output=True, text=True, cwd=ROOT)
+    assert done.returncode == 0, done.stderr
+    for name in ("success.png", "curriculum.png", "curriculum_distance.png"):
+        assert (path / "plots" / name).read_bytes()[:4] == b"\x89PNG"
+    bad = subprocess.run([*command, str(tmp_path)], capture_output=True, text=True, cwd=ROOT)
+    assert bad.returncode == 2
+    assert bad.stderr.splitlines()[0] == f"error: {tmp_path} is not a run directory: no config.json"
+
+
+def test_a_checkpoint_of_another_state_layout_is_refused_with_its_reason(tmp_path):
+    """A state written by another version (other TrainState fields) is not restored into
+    today's: RunError(2) saying so, not orbax's tree diff."""
+    import jax.numpy as jnp
+
+    from d2c_jax.training import checkpoint
+
+    ckpt = runs.open_checkpointer(tmp_path)
+    ckpt.save(1, {"a": jnp.zeros(3), "n_episodes": jnp.zeros((), jnp.int32)})
+    ckpt.close()
+    ckpt = runs.open_checkpointer(tmp_path)
+    with pytest.raises(runs.RunError) as err:
+        runs.restore_or_fail(ckpt, {"a": jnp.zeros(3), "hparams": jnp.zeros(())}, tmp_path)
+    ckpt.close()
+    assert err.value.status == 2
+    assert "another layout" in str(err.value).splitlines()[0]
+    assert isinstance(err.value.__context__, checkpoint.CheckpointError)
+
+
 def test_overrides_reach_the_config():
     cfg, out, resume = cli.parse_args(
         [

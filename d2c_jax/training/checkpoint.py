@@ -79,6 +79,11 @@ class Checkpointer:
                 stored = self._manager.restore(step, args=ocp.args.StandardRestore(abstract))
         except Exception as err:  # orbax raises many types; all mean "unreadable"
             first_line = str(err).splitlines()[0] if str(err) else type(err).__name__
+            if "tree structures do not match" in first_line:
+                first_line = (
+                    "its state has another layout (written by another version of d2c_jax, "
+                    "e.g. one before the issue-16 restructure; resume it with that version)"
+                )
             raise CheckpointError(
                 f"cannot read checkpoint {self.directory / str(step)}: {first_line}"
             ) from err
