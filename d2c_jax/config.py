@@ -179,7 +179,11 @@ class CurriculumConfig:
     pool_min_move: float = 0.0
     """Pool episodes whose phi moved at most this from start to end are not candidates."""
     archive_size: int = 0
-    """Pool episodes drawn uniformly from the whole buffer, beside the P most recent."""
+    """Pool episodes drawn from the whole buffer, beside the P most recent."""
+    archive_rarity: float = 0.0
+    """w: archive episodes are drawn with probability proportional to density(phi(s_T))^-w,
+    the visitation density of their final state (MEGA's minimum-density idea, soft); 0
+    draws uniformly."""
     goal_value_weight: float = 0.0
     """beta: each Eq. 7 edge cost less beta * (1 - gamma) * V(s, g_j+), the critic's value
     of reaching slot j's desired example from candidate s (0: Eq. 7 alone)."""

@@ -440,3 +440,18 @@ def test_a_matching_stopped_by_the_iteration_cap_is_logged_as_not_converged():
     assert goals.shape == (4, 2)
     _, m = RUN(POOL, 6, jnp.zeros(2), jax.random.key(0))
     assert float(m["curriculum/auction_converged"]) == 1.0
+
+
+def test_rarity_weights_are_minus_w_log_kde_density_by_hand():
+    """Gaussian KDE with bandwidth 5% of the goal extent (36 -> 1.8 units per coordinate):
+    an outcome among many visited states weighs less than a lone one, by w * the log
+    density ratio, computed here in numpy."""
+    visited = np.asarray([[0.0, 0.0]] * 9 + [[10.0, 0.0]], np.float32)
+    outcomes = np.asarray([[0.0, 0.0], [10.0, 0.0], [-15.0, 15.0]], np.float32)
+    got = np.asarray(cur.rarity_log_weights(ENV, jnp.asarray(outcomes), jnp.asarray(visited), 2.0))
+    h = 0.05 * 36.0
+    sq = (((outcomes[:, None] - visited[None]) / h) ** 2).sum(-1)
+    want = -2.0 * np.log(np.exp(-0.5 * sq.astype(np.float64)).sum(1))
+    np.testing.assert_allclose(got[:2], want[:2], rtol=1e-5, atol=1e-5)
+    assert got[0] < got[1] < got[2]  # crowded, then 1 of 10 visits, then never visited
+    np.testing.assert_allclose(got[1] - got[0], 2.0 * np.log(9.0), rtol=1e-4)

@@ -197,3 +197,17 @@ def test_archive_draws_distinct_filled_episodes():
     assert int(np.asarray(valid).sum()) == 4  # two rows beyond the stored episodes
     with pytest.raises(ValueError, match="archive"):
         replay.archived_episode_slots(state, 7, jax.random.key(3))
+
+
+def test_weighted_archive_draws_in_proportion_to_the_weights():
+    """Slot weights 1 : 3 (a = 1 draw): over many keys slot 1 comes three times as often;
+    a weight of -inf is never drawn while others are left; empty slots never are."""
+    state = phased_buffer()  # 4 of 6 slots filled
+    log_w = jnp.log(jnp.asarray([1.0, 3.0, 0.0, 0.0, 5.0, 5.0]))  # slots 4, 5 are empty
+    draw = jax.jit(jax.vmap(lambda k: replay.archived_episode_slots(state, 1, k, log_w)[0][0]))
+    picks = np.asarray(draw(jax.random.split(jax.random.key(0), 4000)))
+    counts = np.bincount(picks, minlength=6)
+    assert counts[2] == counts[3] == counts[4] == counts[5] == 0
+    np.testing.assert_allclose(counts[1] / counts[0], 3.0, rtol=0.12)
+    slots, valid = replay.archived_episode_slots(state, 4, jax.random.key(1), log_w)
+    assert np.all(valid) and sorted(np.asarray(slots).tolist()) == [0, 1, 2, 3]

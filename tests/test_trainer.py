@@ -318,6 +318,7 @@ def test_sigterm_checkpoints_and_resume_continues(tmp_path):
         ["--curriculum.variant", "value"],
         pytest.param(["--curriculum.variant", "none"], marks=pytest.mark.slow),
         pytest.param(["--reward", "sparse"], marks=pytest.mark.slow),
+        ["--curriculum.archive-size", "8", "--curriculum.archive-rarity", "1"],
         [
             "--classifier.goal-candidates",
             "buffer_and_desired",

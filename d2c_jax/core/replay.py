@@ -248,21 +248,27 @@ def recent_episode_slots(state: ReplayState, p: int) -> tuple[jax.Array, jax.Arr
 
 
 def archived_episode_slots(
-    state: ReplayState, a: int, key: jax.Array
+    state: ReplayState, a: int, key: jax.Array, log_weights: jax.Array | None = None
 ) -> tuple[jax.Array, jax.Array]:
-    """Buffer slots (a,) of `a` distinct episodes uniform over the stored ones, and valid
+    """Buffer slots (a,) of `a` distinct episodes drawn from the stored ones, and valid
     (a,) bool (false while fewer than `a` episodes are stored).
 
     The curriculum's long memory (issue 10 rule 5; HGG keeps a pool of 1000 trajectories):
     a frontier state reached once, long ago, stays a matching candidate.
 
+    Args:
+      log_weights: (n_slots,) unnormalised log-probabilities of the slots; None: uniform.
     Raises:
       ValueError: if a > n_slots.
     """
     if a > state.n_slots:
         raise ValueError(f"archive of {a} episodes exceeds the buffer's {state.n_slots} slots")
     filled = jnp.arange(state.n_slots) < state.size
-    # Gumbel top-k: a uniform sample without replacement among the filled slots.
-    scores = jnp.where(filled, jax.random.gumbel(key, (state.n_slots,)), -jnp.inf)
+    # Gumbel top-k: a sample without replacement among the filled slots, each drawn with
+    # probability proportional to exp(log_weights) (uniform without them).
+    gumbel = jax.random.gumbel(key, (state.n_slots,))
+    if log_weights is not None:
+        gumbel = gumbel + log_weights
+    scores = jnp.where(filled, gumbel, -jnp.inf)
     _, slots = jax.lax.top_k(scores, a)
     return slots, filled[slots]

@@ -75,6 +75,37 @@ def moved(pool_ag: jax.Array, min_move: float) -> jax.Array:
     return goal_distance(pool_ag[:, 0], pool_ag[:, -1]) > min_move
 
 
+# KDE bandwidth of `rarity_log_weights` per goal coordinate, as a fraction of the goal
+# bounds' extent: 1.8 maze units (under half a 4-unit cell), 3 cm on the Sawyer table.
+RARITY_BANDWIDTH = 0.05
+
+
+def rarity_log_weights(
+    env: GoalEnv, outcomes: jax.Array, visited: jax.Array, rarity: float
+) -> jax.Array:
+    """-rarity * log density(outcome) under a Gaussian KDE of visited achieved goals.
+
+    Weights for drawing episodes by how rarely their outcome was visited (MEGA's
+    minimum-density goals, Pitis et al. 2020, in soft form): with the archive drawn
+    proportional to exp of these, an episode that ended where the agent seldom goes is
+    density^-rarity times as likely as one ending where it often goes. Only visitation
+    counts, so nothing about walls or the desired outcomes is used.
+
+    Args:
+      env: the environment (its goal bounds set the bandwidth, `RARITY_BANDWIDTH`).
+      outcomes: (N, d) final achieved goals of the episodes.
+      visited: (M, d) achieved goals of random buffer states (the KDE's points).
+      rarity: the exponent w >= 0.
+    Returns:
+      (N,) log-weights (up to a constant).
+    """
+    span = jnp.asarray(env.goal_high, jnp.float32) - jnp.asarray(env.goal_low, jnp.float32)
+    scale = RARITY_BANDWIDTH * jnp.where(span > 0, span, 1.0)  # (d,); pinned coordinates: 1
+    diff = (outcomes[:, None, :] - visited[None, :, :]) / scale  # (N, M, d)
+    log_density = jax.scipy.special.logsumexp(-0.5 * jnp.sum(diff**2, axis=-1), axis=1)
+    return -rarity * log_density
+
+
 def matched_distance(goals: jax.Array, desired: jax.Array) -> jax.Array:
     """Paper §5.1's curriculum distance: mean L2 after an optimal matching of the two sets.
 

@@ -120,6 +120,10 @@ def host_constants(cfg: config_lib.TrainConfig, env: envs.GoalEnv) -> HostConsta
     return HostConstants(start_goal=np.asarray(env.start_goal, np.float32), start_obs=start_obs)
 
 
+# Buffer states in the KDE of the archive's rarity weights (`Agent._archive_log_weights`).
+_RARITY_POINTS = 1024
+
+
 class Agent:
     """D2C for one config and env, built once on the host.
 
@@ -269,6 +273,14 @@ class Agent:
             jnp.concatenate([slots, archived]),
             jnp.concatenate([valid, jnp.broadcast_to(valid[0], archived_valid.shape)]),
         )
+
+    def _archive_log_weights(self, ts: TrainState, key) -> jax.Array:
+        """(n_slots,) log-weights of the archive draw: the rarity of each episode's final
+        state among visited states (`curriculum.rarity_log_weights`)."""
+        rarity = self.cfg.curriculum.archive_rarity
+        visited = replay.sample_achieved_goals(ts.replay, _RARITY_POINTS, key)
+        outcomes = ts.replay.achieved_goal[:, -1]  # (n_slots, d)
+        return curriculum.rarity_log_weights(self.env, outcomes, visited, rarity)
 
     def _start_value_fn(self, ts: TrainState):
         """V(s0, g) = min_i Q_i(s0, pi(s0, g), g) for the "+Value" ablation (appendix C.2)."""
@@ -450,8 +462,3 @@ def jit_evaluate(agent: Agent):
 def make_train_step(cfg: config_lib.TrainConfig, env: envs.GoalEnv):
     """`jit_step` of a new `Agent(cfg, env)`: step(ts) -> (ts, metrics) over seeds."""
     return jit_step(Agent(cfg, env))
-
-
-def make_eval_step(cfg: config_lib.TrainConfig, env: envs.GoalEnv):
-    """`jit_evaluate` of a new `Agent(cfg, env)`: (ts, keys) -> metrics over seeds."""
-    return jit_evaluate(Agent(cfg, env))

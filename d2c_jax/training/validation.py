@@ -178,6 +178,7 @@ _RANGE_EXCEPTIONS: dict[str, Range] = {
     # Counts where 0 means "off".
     "curriculum.post_success_switch_every": Interval(0, integer=True),
     "curriculum.archive_size": Interval(0, integer=True),
+    "curriculum.archive_rarity": Interval(0),
 }
 
 # Flags whose name is not the dotted field path with dashes.
