@@ -347,7 +347,8 @@ def test_no_preset_on_cpu_means_quick_and_says_so_first():
 
 
 def test_quick_preset_adds_exploration_everywhere_but_medium_maze():
-    """complex/spiral quick = variant U of RESULTS.md (the exploration options and utd 1);
+    """complex quick = variant U of RESULTS.md (the exploration options and utd 1), spiral
+    quick = variant F (U and the goal-value tie-break, beta = 1);
     Ant and Sawyer quick = the options at utd 0.25 with an evaluation every 30k env steps;
     medium_maze's quick preset keeps SPEC §3-§6 as written."""
     for env in envs.ENV_NAMES:
@@ -368,7 +369,11 @@ def test_quick_preset_adds_exploration_everywhere_but_medium_maze():
         if env == "medium_maze":
             assert quick == base
         elif env in ("complex_maze", "spiral_maze"):
-            assert quick == dataclasses.replace(config.with_outpace_exploration(base), utd=1.0)
+            u = dataclasses.replace(config.with_outpace_exploration(base), utd=1.0)
+            beta = 1.0 if env == "spiral_maze" else 0.0
+            assert quick == dataclasses.replace(
+                u, curriculum=dataclasses.replace(u.curriculum, goal_value_weight=beta)
+            )
         else:
             want = dataclasses.replace(config.with_outpace_exploration(base), eval_every=30_000)
             assert quick == want

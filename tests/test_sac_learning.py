@@ -23,7 +23,7 @@ import jax.numpy as jnp  # noqa: E402
 import pytest  # noqa: E402
 
 from d2c_jax.config import HERConfig, ReplayConfig, SACConfig  # noqa: E402
-from d2c_jax.core import her, networks, replay, sac  # noqa: E402
+from d2c_jax.core import her, networks, replay, rollout, sac  # noqa: E402
 
 EMPTY_ARENA = (
     "###########",
@@ -60,31 +60,6 @@ def make_arena():
     return PointMaze(maze="empty_arena", layout=EMPTY_ARENA, goal_points=((8.0, 8.0),))
 
 
-def _episode(env, policy, goal, key):
-    """One episode with a fixed goal; returns (obs, ag, action, goal, success) stacks."""
-    key_reset, key_steps = jax.random.split(key)
-    state = env.reset_with_goal(key_reset, goal)
-
-    def step(state, k):
-        action = policy(state.obs, state.goal, k)
-        new = env.step(state, action)
-        return new, (new.obs, new.achieved_goal, action, state.goal, new.success)
-
-    _, (obs, ag, act, goals, success) = jax.lax.scan(
-        step, state, jax.random.split(key_steps, env.horizon)
-    )
-    obs = jnp.concatenate([state.obs[None], obs])
-    ag = jnp.concatenate([state.achieved_goal[None], ag])
-    return replay_episodes(obs, ag, act, goals), success.any()
-
-
-def replay_episodes(obs, ag, action, goal):
-    """A record with the fields `replay.insert_episodes` reads."""
-    from d2c_jax.core.rollout import Episodes
-
-    return Episodes(obs, ag, action, goal, jnp.zeros(action.shape[:-1], bool))
-
-
 def make_loop(env, cfg: SACConfig):
     """Jitted collect, update and evaluate functions."""
     nets, opt, hp = networks.make_networks(cfg, env), sac.make_optimizers(), sac.hyperparams(cfg)
@@ -98,10 +73,9 @@ def make_loop(env, cfg: SACConfig):
             policy = lambda o, g, k: jax.random.uniform(k, (env.action_dim,), minval=-1, maxval=1)  # noqa: E731
         else:
             policy = sac.make_policy(nets, sac_state, env, deterministic=False)
-        episodes, success = jax.vmap(lambda g, k: _episode(env, policy, g, k))(
-            goals, jax.random.split(key_ep, NUM_ENVS)
-        )
-        return episodes, success.mean()
+        # The trainer's episode loop, goals held (no post-success switching).
+        episodes = rollout.collect(env, policy, None, goals, NUM_ENVS, key_ep)
+        return episodes, episodes.success.any(axis=1).mean()
 
     def update(sac_state, buffer, key):
         def body(state, k):
@@ -119,10 +93,8 @@ def make_loop(env, cfg: SACConfig):
         key_goal, key_ep = jax.random.split(key)
         goals = env.sample_uniform_goals(key_goal, n_goals)
         policy = sac.make_policy(nets, sac_state, env, deterministic=True)
-        _, success = jax.vmap(lambda g, k: _episode(env, policy, g, k))(
-            goals, jax.random.split(key_ep, n_goals)
-        )
-        return success.mean()
+        episodes = rollout.collect(env, policy, None, goals, n_goals, key_ep)
+        return episodes.success.any(axis=1).mean()
 
     jit_collect = jax.jit(collect, static_argnums=2)
     jit_update = jax.jit(update, donate_argnums=(0,))

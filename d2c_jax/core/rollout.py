@@ -193,19 +193,19 @@ def _transition(before: EnvState, action: jax.Array, after: EnvState) -> tuple:
 def collect(
     env: GoalEnv,
     policy: Policy,
-    next_goal: GoalSwitch,
+    next_goal: GoalSwitch | None,
     curriculum_goals: jax.Array,
     num_envs: int,
     key: jax.Array,
     switch_every: int = 0,
 ) -> Episodes:
     """Runs `num_envs` training episodes in parallel; env i starts with curriculum goal
-    i mod K and switches goals after success (`run` with `next_goal`).
+    i mod K and switches goals after success (`run` with `next_goal`; None keeps them).
 
     Args:
       env: the environment.
       policy: action function (see `Policy`).
-      next_goal: post-success goal choice (see `GoalSwitch`).
+      next_goal: post-success goal choice (see `GoalSwitch`); None: no switching.
       curriculum_goals: (K, goal_dim) the curriculum goals.
       num_envs: number of parallel episodes.
       key: PRNG key.
