@@ -260,6 +260,37 @@ def test_held_goals_between_matchings_are_used_in_turn(medium_maze):
     assert not np.array_equal(ts3.curriculum_goals, ts2.curriculum_goals)  # matched again
 
 
+def test_the_step_reads_its_hyperparameters_from_the_state(medium_maze):
+    """TrainState.hparams are traced inputs of the compiled step (what a sweep vmaps):
+    zero learning rates and tau, set in the state after init, freeze every network."""
+    import jax
+
+    cfg = config.preset("medium_maze", "tiny")
+    agent = agent_lib.Agent(cfg, medium_maze)
+    ts = agent.init_seeds()
+
+    def zero():  # a buffer of its own per leaf: the step donates its state
+        return jax.numpy.zeros_like(ts.hparams.sac.actor_lr)
+
+    frozen = ts.hparams.replace(
+        sac=ts.hparams.sac.replace(actor_lr=zero(), critic_lr=zero(), alpha_lr=zero(), tau=zero()),
+        classifier=ts.hparams.classifier.replace(lr=zero()),
+    )
+    step = agent_lib.jit_step(agent)
+    before = jax.tree.map(np.asarray, (ts.sac, ts.classifier.params))
+    after, metrics = step(ts.replace(hparams=frozen))
+    nets = lambda s: (s.actor_params, s.critic_params, s.target_critic_params, s.log_alpha)  # noqa: E731
+    for a, b in zip(
+        jax.tree.leaves(nets(before[0])), jax.tree.leaves(nets(after.sac)), strict=True
+    ):
+        np.testing.assert_array_equal(a, b)
+    for a, b in zip(
+        jax.tree.leaves(before[1]), jax.tree.leaves(after.classifier.params), strict=True
+    ):
+        np.testing.assert_array_equal(a, b)
+    assert float(metrics["sac/critic_loss"][0]) > 0  # the updates ran, with step size 0
+
+
 def test_sigterm_checkpoints_and_resume_continues(tmp_path):
     import signal
     import time
