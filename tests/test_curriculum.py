@@ -237,7 +237,8 @@ def test_trajectory_ending_at_a_mode_is_matched_to_it():
 
 def test_goal_noise_is_the_curriculum_config_s():
     """Goal j = its matched candidate (a subsampled pool state) + U[-c, c] noise with
-    c = cfg.goal_noise: c = 0 gives the candidates exactly; propose takes no noise
+    c = cfg.goal_noise, or the traced `goal_noise` the trainer passes from its
+    hyperparameters: c = 0 gives the candidates exactly. The classifier's eps is no
     argument, and the discount has no default of its own (it is SACConfig.gamma)."""
     states = np.asarray(cur.subsample(POOL, CFG.cost_stride)).reshape(-1, 2)
     gaps = {}
@@ -247,6 +248,15 @@ def test_goal_noise_is_the_curriculum_config_s():
         gaps[c] = np.abs(np.asarray(goals)[:, None] - states[None]).max(-1).min(-1)  # (K,)
     np.testing.assert_array_equal(gaps[0.0], 0.0)
     assert np.all(gaps[1.5] <= 1.5 + 1e-5) and gaps[1.5].max() > 0.5
+    traced = jax.jit(
+        lambda c: cur.propose(
+            dataclasses.replace(CFG, goal_noise=1.5), ENV, DIST, NO_PARAMS, POOL,
+            filled(POOL, 6), jnp.zeros(2), jax.random.key(0), gamma=GAMMA, goal_noise=c,
+        )[0]
+    )  # fmt: skip
+    np.testing.assert_array_equal(traced(jnp.float32(0.0)), _propose(
+        dataclasses.replace(CFG, goal_noise=0.0), ENV, DIST, NO_PARAMS
+    )(POOL, 6, jnp.zeros(2), jax.random.key(0))[0])  # fmt: skip
     params = inspect.signature(cur.propose).parameters
     assert "eps" not in params and params["gamma"].default is inspect.Parameter.empty
 

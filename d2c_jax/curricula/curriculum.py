@@ -230,11 +230,12 @@ def propose(
     gamma: float,
     pool_obs: jax.Array | None = None,
     goal_value_fn: GoalValueFn | None = None,
+    goal_noise: jax.Array | float | None = None,
 ) -> tuple[jax.Array, Metrics]:
     """K curriculum goals (SPEC §5, Eq. 6-7).
 
     Variant "d2c": match slots to distinct pool trajectories by the auction on Eq. 7 costs;
-    goal j = matched candidate + U[-c, c] * mask (c = cfg.goal_noise), clipped. "value": the same
+    goal j = matched candidate + U[-c, c] * mask (c = the goal noise), clipped. "value": the same
     with w' = w - (1 - gamma) V(s0, phi(s)). "none": the slots themselves (fresh desired
     examples). With `cfg.goal_value_weight` beta > 0, each edge cost also loses
     beta (1 - gamma) V(s, g_j+) (`cost_matrix`). Until all pool entries are valid,
@@ -245,7 +246,7 @@ def propose(
     cost, which the auction returns at once.
 
     Args:
-      cfg: curriculum config (K = cfg.n_slots; the goal noise c = cfg.goal_noise).
+      cfg: curriculum config (K = cfg.n_slots).
       env: the environment.
       net: classifier module; params: its parameters.
       pool_ag: (P, T, d) achieved goals of the pool episodes (recent, then archived).
@@ -257,6 +258,8 @@ def propose(
         terms ("+Value" and beta).
       pool_obs: (P, T, o) observations of the pool states; needed when beta > 0.
       goal_value_fn: V(s, g) over observations and one goal; needed when beta > 0.
+      goal_noise: c, a traced value (the trainer's `TrainState.hparams`); None:
+        cfg.goal_noise.
     Returns:
       goals (K, d) and metrics {"curriculum/distance" (paper §5.1, `matched_distance`),
       "curriculum/slot_distance" (each goal to its own slot), "curriculum/matched_cost",
@@ -286,7 +289,8 @@ def propose(
         solved = matching.auction_solve(cost, max_iters=cfg.auction_max_iters)
         cols, converged = solved.assignment, solved.converged  # (K,) distinct columns
         rows = jnp.arange(cfg.n_slots)
-        noise = _uniform_noise(env, key_noise, slots.shape, cfg.goal_noise)  # SPEC §5's eps
+        c = cfg.goal_noise if goal_noise is None else goal_noise  # SPEC §5's eps
+        noise = _uniform_noise(env, key_noise, slots.shape, c)
         matched = candidates[rows, cols] + noise
         full = pool_full(pool_valid)
         warm = warmup_goals(env, start_goal, cfg.n_slots, key_warm)

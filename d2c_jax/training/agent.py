@@ -69,6 +69,7 @@ class Hyperparams:
     sac: sac.SACHyperparams  # learning rates, tau, initial log alpha
     classifier: classifier.ClassifierHyperparams  # learning rate, lambda, mu, eps
     relabel_prob: jax.Array  # () float32 HER's relabelling probability
+    goal_noise: jax.Array  # () float32 half-width c of the curriculum goals' noise
 
 
 def hyperparams(cfg: config_lib.TrainConfig) -> Hyperparams:
@@ -77,6 +78,7 @@ def hyperparams(cfg: config_lib.TrainConfig) -> Hyperparams:
         sac=sac.hyperparams(cfg.sac),
         classifier=classifier.hyperparams(cfg.classifier),
         relabel_prob=np.float32(cfg.her.relabel_prob),
+        goal_noise=np.float32(cfg.curriculum.goal_noise),
     )
 
 
@@ -250,6 +252,7 @@ class Agent:
             gamma=cfg.sac.gamma,
             pool_obs=pool_obs,
             goal_value_fn=goal_value_fn,
+            goal_noise=ts.hparams.goal_noise,
         )
         return goals, jax.tree.map(lambda x: x.astype(jnp.float32), metrics)
 
