@@ -80,9 +80,9 @@ class SACConfig:
     tau: float = 0.01
     """Polyak coefficient of the target critic update."""
     target_update_every: int = 2
-    """Update the target critic every this many updates."""
+    """Update the target critic every this many SAC updates (Table 2 counts updates)."""
     actor_update_every: int = 2
-    """Update the actor and alpha every this many updates."""
+    """Update the actor and alpha every this many SAC updates (Table 2 counts updates)."""
     init_alpha: float = 0.3
     """Initial entropy temperature alpha."""
     target_entropy: float | None = None
@@ -173,7 +173,8 @@ class CurriculumConfig:
     post_success_temperature: float = 0.1
     """'outpace': the qualifying candidates are sampled by softmax(p / temperature)."""
     post_success_switch_every: int = 0
-    """After the curriculum goal is reached, also switch goals every this many steps (0: off)."""
+    """After the curriculum goal is reached, also switch goals every this many env steps of
+    the episode (0: off)."""
     pool_tail_fraction: float = 1.0
     """Match against the last this fraction of each pool trajectory plus its final state."""
     pool_min_move: float = 0.0
@@ -221,7 +222,8 @@ class TrainConfig:
     seed_steps: int = _MAZE.seed_steps
     """Env steps of random actions at the start (whole iterations: ceil(seed_steps / E))."""
     eval_every: int = 10_000
-    """Evaluate every ceil(eval_every / E) iterations (and once at the end)."""
+    """Env steps between evaluations: every ceil(eval_every / E) iterations (and once at
+    the end)."""
     eval_episodes: int = 10
     """Evaluation episodes per mode."""
     checkpoint_every: int = 50_000
