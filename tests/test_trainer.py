@@ -291,6 +291,41 @@ def test_the_step_reads_its_hyperparameters_from_the_state(medium_maze):
     assert float(metrics["sac/critic_loss"][0]) > 0  # the updates ran, with step size 0
 
 
+def test_archive_rarity_draws_the_episode_that_ended_where_nobody_goes(medium_maze):
+    """Nine episodes end at the start, one at a far corner: with archive_rarity the archive
+    of one episode is that one for (almost) every key; without it, about one key in ten."""
+    import jax
+
+    from d2c_jax.core import replay
+    from d2c_jax.core.rollout import Episodes
+
+    cfg = config.preset("medium_maze", "tiny")
+    horizon, n = medium_maze.horizon, 10
+    ag = np.zeros((n, horizon + 1, 2), np.float32)
+    ag[-1, -1] = [10.0, 10.0]  # the last state of the last episode
+    episodes = Episodes(
+        obs=np.zeros((n, horizon + 1, medium_maze.obs_dim), np.float32),
+        achieved_goal=ag,
+        action=np.zeros((n, horizon, 2), np.float32),
+        goal=np.zeros((n, horizon, 2), np.float32),
+        success=np.zeros((n, horizon), bool),
+        walk_start=np.full(n, horizon, np.int32),
+    )
+    picked = {}
+    for rarity in (0.0, 2.0):
+        cur = dataclasses.replace(
+            cfg.curriculum, pool_size=4, archive_size=1, archive_rarity=rarity
+        )
+        agent = agent_lib.Agent(dataclasses.replace(cfg, curriculum=cur), medium_maze)
+        ts = jax.tree.map(lambda x: x[0], agent.init_seeds())
+        ts = ts.replace(replay=replay.insert_episodes(ts.replay, episodes))
+        pool = jax.jit(jax.vmap(agent._matching_pool, in_axes=(None, 0)))
+        slots, _ = pool(ts, jax.random.split(jax.random.key(0), 200))
+        picked[rarity] = np.mean(np.asarray(slots)[:, -1] == n - 1)  # the archived row
+    assert picked[2.0] > 0.95
+    assert 0.03 < picked[0.0] < 0.2
+
+
 def test_sigterm_checkpoints_and_resume_continues(tmp_path):
     import signal
     import time

@@ -258,7 +258,8 @@ class Agent:
 
     def _matching_pool(self, ts: TrainState, key) -> tuple[jax.Array, jax.Array]:
         """The curriculum's pool: the P most recent episodes, then `archive_size` episodes
-        drawn from the whole buffer (issue 10 rule 5).
+        drawn from the whole buffer (issue 10 rule 5), towards rarely visited outcomes
+        with `archive_rarity` > 0.
 
         Archive rows beyond the episodes stored so far repeat the most recent episode, so
         the pool counts as full (the warm-up ends) as soon as P episodes exist.
@@ -270,7 +271,13 @@ class Agent:
         slots, valid = replay.recent_episode_slots(ts.replay, cur.pool_size)
         if cur.archive_size == 0:
             return slots, valid
-        archived, archived_valid = replay.archived_episode_slots(ts.replay, cur.archive_size, key)
+        log_weights = None
+        if cur.archive_rarity > 0:  # else the uniform draw, with the key it always had
+            key, k_weights = jax.random.split(key)
+            log_weights = self._archive_log_weights(ts, k_weights)
+        archived, archived_valid = replay.archived_episode_slots(
+            ts.replay, cur.archive_size, key, log_weights
+        )
         archived = jnp.where(archived_valid, archived, slots[0])
         return (
             jnp.concatenate([slots, archived]),
