@@ -1,6 +1,6 @@
 """Demo: random-policy rollouts in each maze, drawn over the maze.
 
-    python -m d2c_jax.viewing.demo --out runs/demo
+    python -m d2c_jax.demo --out runs/demo
 
 Writes `<out>/random_rollouts.png`. Useful to check an install: it builds every maze,
 jits the episode loop (`rollout.trajectories`, a scan over a step vmapped over episodes)
