@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 
 from d2c_jax.config import SACConfig
-from d2c_jax.core import networks, sac, types
+from d2c_jax.core import networks, optim, sac, types
 
 
 class ProbeEnv:
@@ -228,7 +228,7 @@ def test_adam_step_with_a_traced_learning_rate_is_optax_adam_bitwise():
     for g in grads:
         updates, ref_state = optax.adam(lr).update(g, ref_state, reference)
         reference = optax.apply_updates(reference, updates)
-        ours, our_state = jax.jit(sac._apply, static_argnums=0)(
+        ours, our_state = jax.jit(optim.adam_step, static_argnums=0)(
             sac.make_optimizers().actor, jnp.float32(lr), g, our_state, ours
         )
     np.testing.assert_array_equal(ours["w"], reference["w"])

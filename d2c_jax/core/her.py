@@ -17,7 +17,6 @@ from d2c_jax.core import replay
 from d2c_jax.core.types import Batch, RewardFn
 
 
-# reward_fn(ag_next (..., goal_dim), goal (..., goal_dim)) -> reward (...,)
 def sparse_reward_fn(env) -> RewardFn:
     """The sparse reward r = 1[||ag_next - goal|| <= radius] (SPEC §4 ablation)."""
 

@@ -15,7 +15,7 @@ and compute the actor update on every update (up to ~1.5x slower).
 Hyperparameters that keep shapes (learning rates, tau, the initial alpha) are a pytree,
 `SACHyperparams`, that the update reads as traced values rather than constants baked into
 the compiled program, so a sweep can vmap over them; the static `Optimizers` are Adam
-without its learning rate, which the update applies from the pytree.
+with a traced step size (`optim`).
 """
 
 from __future__ import annotations
@@ -30,7 +30,7 @@ import optax
 from flax import struct
 
 from d2c_jax.config import SACConfig
-from d2c_jax.core import networks
+from d2c_jax.core import networks, optim
 from d2c_jax.core.types import Batch, Metrics
 
 
@@ -62,19 +62,18 @@ class SACHyperparams:
 
 def hyperparams(cfg: SACConfig) -> SACHyperparams:
     """The config's values; log alpha is taken on the host, in double precision."""
-    f32 = lambda x: np.float32(x)  # noqa: E731
     return SACHyperparams(
-        actor_lr=f32(cfg.actor_lr),
-        critic_lr=f32(cfg.critic_lr),
-        alpha_lr=f32(cfg.alpha_lr),
-        tau=f32(cfg.tau),
-        init_log_alpha=f32(math.log(cfg.init_alpha)),
+        actor_lr=np.float32(cfg.actor_lr),
+        critic_lr=np.float32(cfg.critic_lr),
+        alpha_lr=np.float32(cfg.alpha_lr),
+        tau=np.float32(cfg.tau),
+        init_log_alpha=np.float32(math.log(cfg.init_alpha)),
     )
 
 
 class Optimizers(NamedTuple):
-    """The three optimisers (static; their states live in SACState): Adam's moment
-    scaling, to which `_apply` adds the step size from `SACHyperparams`."""
+    """The three optimisers (static; their states live in SACState): `optim.adam`, whose
+    step size `optim.adam_step` takes from `SACHyperparams`."""
 
     actor: optax.GradientTransformation
     critic: optax.GradientTransformation
@@ -82,9 +81,8 @@ class Optimizers(NamedTuple):
 
 
 def make_optimizers() -> Optimizers:
-    """Adam (optax defaults) without its learning rate: `optax.adam(lr)` is this followed
-    by a scaling by -lr, which `_apply` does with a traced lr (bitwise the same)."""
-    return Optimizers(*(optax.scale_by_adam() for _ in range(3)))
+    """Adam for the actor, the critic and log alpha (Table 2), step sizes traced."""
+    return Optimizers(optim.adam(), optim.adam(), optim.adam())
 
 
 def target_entropy(cfg: SACConfig, action_dim: int) -> float:
@@ -190,13 +188,6 @@ def alpha_loss(log_alpha: jax.Array, log_prob: jax.Array, entropy_target: float)
 # --- the update -------------------------------------------------------------------------
 
 
-def _apply(opt: optax.GradientTransformation, lr: jax.Array, grads, opt_state, params):
-    """One Adam step of size lr: params - lr * adam_direction(grads)."""
-    direction, opt_state = opt.update(grads, opt_state, params)
-    updates = jax.tree.map(lambda d: -lr * d, direction)
-    return optax.apply_updates(params, updates), opt_state
-
-
 def _critic_step(cfg: SACConfig, nets, opt, hp, state: SACState, feats, next_feats, batch, key):
     """Soft TD target, then one Adam step on J_Q."""
     alpha = jnp.exp(state.log_alpha)
@@ -206,7 +197,7 @@ def _critic_step(cfg: SACConfig, nets, opt, hp, state: SACState, feats, next_fea
     )  # fmt: skip
     grad_fn = jax.value_and_grad(critic_loss, has_aux=True)
     (loss, q), grads = grad_fn(state.critic_params, nets, feats, batch.action, y)
-    params, opt_state = _apply(
+    params, opt_state = optim.adam_step(
         opt.critic, hp.critic_lr, grads, state.critic_opt, state.critic_params
     )
     metrics = {
@@ -226,7 +217,7 @@ def _actor_step(cfg: SACConfig, nets, opt, hp, state: SACState, feats, action_di
     (loss, log_prob), grads = grad_fn(
         state.actor_params, nets, state.critic_params, alpha, feats, key
     )
-    actor_params, actor_opt = _apply(
+    actor_params, actor_opt = optim.adam_step(
         opt.actor, hp.actor_lr, grads, state.actor_opt, state.actor_params
     )
     state = state.replace(actor_params=actor_params, actor_opt=actor_opt, actor_loss=loss)
@@ -234,7 +225,9 @@ def _actor_step(cfg: SACConfig, nets, opt, hp, state: SACState, feats, action_di
         return state
     # The alpha step reuses log pi(a~|s) of the actor step (pre-update actor).
     a_grads = jax.grad(alpha_loss)(state.log_alpha, log_prob, target_entropy(cfg, action_dim))
-    log_alpha, alpha_opt = _apply(opt.alpha, hp.alpha_lr, a_grads, state.alpha_opt, state.log_alpha)
+    log_alpha, alpha_opt = optim.adam_step(
+        opt.alpha, hp.alpha_lr, a_grads, state.alpha_opt, state.log_alpha
+    )
     return state.replace(log_alpha=log_alpha, alpha_opt=alpha_opt)
 
 

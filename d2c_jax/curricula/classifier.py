@@ -26,6 +26,7 @@ import optax
 from flax import struct
 
 from d2c_jax.config import ClassifierConfig
+from d2c_jax.core import optim
 from d2c_jax.core.types import Metrics, RewardFn
 from envs import GoalEnv
 
@@ -114,9 +115,9 @@ def make_classifier(cfg: ClassifierConfig, env: GoalEnv) -> Classifier:
 
 
 def make_optimizer() -> optax.GradientTransformation:
-    """Adam (optax defaults) without its learning rate, which `update_classifier` applies
-    from `ClassifierHyperparams` (`optax.adam(lr)` is this, then a scaling by -lr)."""
-    return optax.scale_by_adam()
+    """Adam (Table 2), its step size traced: `update_classifier` takes it from
+    `ClassifierHyperparams` (`optim.adam_step`)."""
+    return optim.adam()
 
 
 def init_classifier(
@@ -296,9 +297,7 @@ def update_classifier(
     `sample_batch`)."""
     grad_fn = jax.grad(lambda p: loss(cfg, net, hp, p, batch), has_aux=True)
     grads, metrics = grad_fn(state.params)
-    direction, opt_state = opt.update(grads, state.opt_state, state.params)
-    updates = jax.tree.map(lambda d: -hp.lr * d, direction)
-    params = optax.apply_updates(state.params, updates)
+    params, opt_state = optim.adam_step(opt, hp.lr, grads, state.opt_state, state.params)
     return state.replace(params=params, opt_state=opt_state), metrics
 
 

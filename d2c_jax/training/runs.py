@@ -192,8 +192,7 @@ def render_policy(
     # One episode per mode from the episode loop (the modes as an argument, not constants).
     episodes = jax.jit(lambda goals, k: rollout.trajectories(env, policy, goals, k))
     trace = episodes(env.goal_points, jax.random.key(key))  # (n_modes, H + 1, ...)
-    traj = render.to_trajectory(trace)
-    frames = render.render_frames(env, traj, width=width, height=height)  # (n_modes, H+1, h, w, 3)
+    frames = render.render_frames(env, trace, width=width, height=height)  # (n_modes, H+1, h, w, 3)
     if still is not None:
         render.save_image(render.still_strip(frames), still)
     out = pathlib.Path(run_dir) / "policy.gif" if out is None else out
