@@ -1,7 +1,7 @@
 """Regenerates benchmarks/RESULTS.md: every comparison, each measured in this one run.
 
     pip install -e '.[bench]'      # the reference tools: SB3, gymnasium-robotics, PyTorch
-    python -m benchmarks.run [--only throughput sac_update envs matching seeds memory]
+    python -m benchmarks.run [--only throughput sac_update envs matching seeds sweep memory]
 
 Sections written (each names its command and the hardware):
   "Training throughput vs SB3"  d2c_jax SAC+HER and D2C against SB3 SAC+HER (benchmarks.sb3)
@@ -23,7 +23,7 @@ from benchmarks import envs as envs_bench
 from benchmarks import matching, results, sac_update, sb3, trainer
 from envs import ENV_NAMES
 
-PARTS = ("throughput", "sac_update", "envs", "matching", "seeds", "memory")
+PARTS = ("throughput", "sac_update", "envs", "matching", "seeds", "sweep", "memory")
 TARGET_VS_SB3 = {"paper": 1.4, "small": 2.5}
 """Issue targets: d2c_jax SAC+HER env steps/s over SB3's at identical settings."""
 
@@ -75,13 +75,14 @@ def main(argv=None) -> int:
         "envs": ("Environments", lambda: envs_bench.run(ENV_NAMES, (1, 64, 1024), 3)),
         "matching": ("Matching", matching_section),
         "seeds": ("Seed scaling", trainer.seed_scaling),
+        "sweep": ("Sweeps: one program against runs one after another", trainer.sweep_scaling),
         "memory": ("Memory", trainer.memory_table),
     }
     for part in args.only:
         title, job = jobs[part]
         start = time.perf_counter()
         body = job()
-        if part in ("seeds", "memory"):
+        if part in ("seeds", "sweep", "memory"):
             body = f"Command: `python -m benchmarks.run --only {part}`. Hardware: " + (
                 f"{results.hardware()}; jax {jax.__version__}.\n\n{body}"
             )

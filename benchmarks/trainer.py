@@ -1,6 +1,6 @@
 """Whole-trainer benchmarks: throughput, seed scaling and memory.
 
-    python -m benchmarks.trainer [--parts throughput seeds memory curriculum]
+    python -m benchmarks.trainer [--parts throughput seeds sweep memory curriculum]
     python -m benchmarks.trainer --parts seeds --env ant --preset paper --seeds 1 8
 
 prints the numbers; `python -m benchmarks.run` writes them into RESULTS.md.
@@ -18,6 +18,8 @@ iterations (the mean is within a few % of it on an idle machine).
 - seeds: the `quick` preset, 1, 4 and 16 vmapped seeds (or `--env`, `--preset`,
   `--seeds`); seconds per iteration, env steps/s per seed, relative to one seed and to
   running the seeds one after another (n x one seed).
+- sweep: a sweep of 1, 4 and 16 runs (lambda values of the `quick` preset) as one
+  program, against the same runs one after another: compile + 10 iterations each.
 - memory: the `paper` preset with its 3e6-transition buffer, in a fresh process: peak
   resident memory after init, after compiling, and after one executed iteration (M set to
   one SAC block: the buffers and per-update temporaries are those of the real preset),
@@ -232,11 +234,41 @@ def memory_table(env_names=("medium_maze", "ant")) -> str:
     return "\n".join(rows)
 
 
+def sweep_arms(n: int) -> tuple:
+    """`n` values of the diversification weight lambda (the paper's ablation field)."""
+    return (("classifier.diversity_weight", tuple(float(v) for v in np.linspace(0, 2, n))),)
+
+
+def sweep_scaling(
+    env_name: str = "medium_maze", runs=(1, 4, 16), preset: str = "quick", iterations: int = 10
+) -> str:
+    """Wall-clock of a sweep of n runs (n lambda values, one program) against the same n
+    runs done one after another, each a compile plus `iterations` iterations (issue 13).
+
+    One after another, every run is a process of its own: n x (one run's compile + its
+    iterations), with one run's numbers measured here. The sweep pays one compile.
+    """
+    rows = [
+        f"| runs | sweep: compile + {iterations} iterations (s) | one after another (s) | "
+        "sweep / one after another |",
+        "|---|---|---|---|",
+    ]
+    single = None
+    for n in runs:
+        cfg = dataclasses.replace(config.preset(env_name, preset), sweep=sweep_arms(n))
+        seconds, compile_s = iteration_seconds(cfg)
+        wall = compile_s + iterations * seconds
+        single = single or wall
+        rows.append(f"| {n} | {wall:.0f} | {n * single:.0f} | {wall / (n * single):.2f} |")
+        print(rows[-1], flush=True)
+    return "\n".join(rows)
+
+
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument(
         "--parts", nargs="+", default=["throughput", "seeds", "memory"],
-        choices=["throughput", "seeds", "memory", "curriculum"],
+        choices=["throughput", "seeds", "sweep", "memory", "curriculum"],
     )  # fmt: skip
     parser.add_argument("--env", default="medium_maze", help="env of the seeds part")
     parser.add_argument("--preset", default="quick", help="preset of the seeds part")
@@ -252,6 +284,7 @@ def main(argv=None) -> int:
             for (size, variant), rate in throughput_rows().items()
         ),
         "seeds": lambda: seed_scaling(args.env, tuple(args.seeds), args.preset),
+        "sweep": lambda: sweep_scaling(args.env, tuple(args.seeds), args.preset),
         "memory": memory_table,
         "curriculum": curriculum_share,
     }

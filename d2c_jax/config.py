@@ -241,6 +241,10 @@ class TrainConfig:
     """Classifier ensemble."""
     curriculum: CurriculumConfig = dataclasses.field(default_factory=CurriculumConfig)
     """Curriculum."""
+    sweep: tuple[tuple[str, tuple], ...] = ()
+    """Hyperparameter arms (issue 13): (dotted field, values) pairs whose Cartesian
+    product, times the num_seeds seeds, runs as one program (`d2c_jax.training.sweep`);
+    the swept fields' own values above are then unused. () = one arm."""
 
 
 # --- presets (SPEC §2, §8 Table 3) --------------------------------------------------
@@ -411,10 +415,27 @@ def from_dict(cls, values: dict):
         value, hint = values[field.name], hints[field.name]
         if dataclasses.is_dataclass(hint):
             value = from_dict(hint, value)
+        elif field.name == "sweep" and cls is TrainConfig:
+            value = tuple((name, tuple(values)) for name, values in value)
         elif isinstance(value, list):
             value = tuple(value)
         kwargs[field.name] = value
     return cls(**kwargs)
+
+
+def replace_field(cfg, dotted: str, value):
+    """`cfg` with the field at dotted path `dotted` (e.g. "sac.tau") set to `value`."""
+    head, _, rest = dotted.partition(".")
+    if rest:
+        value = replace_field(getattr(cfg, head), rest, value)
+    return dataclasses.replace(cfg, **{head: value})
+
+
+def get_field(cfg, dotted: str):
+    """The value of the field at dotted path `dotted` of `cfg`."""
+    for name in dotted.split("."):
+        cfg = getattr(cfg, name)
+    return cfg
 
 
 def _upgrade(values: dict) -> dict:

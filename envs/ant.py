@@ -36,7 +36,7 @@ import numpy as np
 from mujoco import mjx
 
 from envs import layouts
-from envs.base import GoalEnv, scan_substeps
+from envs.base import GoalEnv, put_mjx, scan_substeps
 
 XML_PATH = os.path.join(os.path.dirname(__file__), "xmls", "ant.xml")
 
@@ -188,14 +188,13 @@ class Ant(GoalEnv):
             ls_iterations=ls_iterations,
             max_contact_points=max_contact_points,
         )
-        self.mjx_model = mjx.put_model(self.mj_model)
+        self.mjx_model, self._data_template = put_mjx(self.mj_model)
         self.start_qpos = np.concatenate([START_POS, [1.0, 0, 0, 0], START_JOINTS]).astype(
             np.float32
         )
         lo, hi = self.mj_model.jnt_range[1:].T  # hinge ranges (the free joint has none)
         self._joint_centre = ((lo + hi) / 2).astype(np.float32)
         self._joint_half = ((hi - lo) / 2).astype(np.float32)
-        self._data_template = mjx.make_data(self.mjx_model)
 
     # --- GoalEnv hooks ----------------------------------------------------------
     def _reset_data(self, key: jax.Array) -> mjx.Data:

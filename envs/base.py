@@ -166,3 +166,14 @@ def scan_substeps(step_fn: Callable[[mjx.Data], mjx.Data], data: mjx.Data, n: in
 
     data, _ = jax.lax.scan(body, data, None, length=n)
     return data
+
+
+def put_mjx(mj_model) -> tuple[mjx.Model, mjx.Data]:
+    """The MJX model and a fresh data of `mj_model`, on this process's first device.
+
+    MJX's default is `jax.devices()[0]`, which in a multi-process job belongs to process
+    0 only; every other process could not even build its envs there.
+    """
+    device = jax.local_devices()[0]
+    model = mjx.put_model(mj_model, device=device)
+    return model, mjx.make_data(model, device=device)

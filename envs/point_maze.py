@@ -20,7 +20,7 @@ import numpy as np
 from mujoco import mjx
 
 from envs import layouts
-from envs.base import GoalEnv
+from envs.base import GoalEnv, put_mjx
 
 CLEARANCE = 0.4
 """Distance the agent's centre keeps from every wall box."""
@@ -213,8 +213,7 @@ class PointMaze(GoalEnv):
         self.wall_centers = layouts.wall_centers(layout, self.cell_size)
         self.wall_half = self.cell_size / 2.0
         self.mj_model = build_maze_model(layout, self.cell_size)
-        self.mjx_model = mjx.put_model(self.mj_model)
-        self._data_template = mjx.make_data(self.mjx_model)
+        self.mjx_model, self._data_template = put_mjx(self.mj_model)
 
     # --- GoalEnv hooks ----------------------------------------------------------
     def _reset_data(self, key: jax.Array) -> mjx.Data:

@@ -51,7 +51,7 @@ import mujoco
 import numpy as np
 from mujoco import mjx
 
-from envs.base import GoalEnv, scan_substeps
+from envs.base import GoalEnv, put_mjx, scan_substeps
 
 N_SUBSTEPS = 5
 """Physics substeps (timestep 0.0025 s) per env step."""
@@ -123,7 +123,7 @@ class SawyerPeg(GoalEnv):
         # Push goals stay on the table: no noise on z (SPEC §1, §3, §5, §6).
         self.goal_noise_mask = np.array([1, 1, 0 if task == "push" else 1], np.float32)
         self.mj_model = build_model(task)
-        self.mjx_model = mjx.put_model(self.mj_model)
+        self.mjx_model, data = put_mjx(self.mj_model)
 
         m = self.mj_model
         adr = lambda name: int(m.jnt_qposadr[m.joint(name).id])  # noqa: E731
@@ -132,7 +132,6 @@ class SawyerPeg(GoalEnv):
         self._finger_adr = np.array([adr("finger_l"), adr("finger_r")])
         self._peg_adr = adr("peg")
         key = m.key("home")
-        data = mjx.make_data(self.mjx_model)
         self._data_template = data.replace(
             qpos=jnp.asarray(key.qpos, jnp.float32),
             mocap_pos=jnp.asarray(key.mpos.reshape(-1, 3), jnp.float32),

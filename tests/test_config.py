@@ -85,6 +85,8 @@ def out_of_range(rng) -> list:
         good = in_range(rng.item)[0]
         bad_items = [v for v in out_of_range(rng.item) if v is not None]
         return [(), *((v,) for v in bad_items), *((good, v) for v in bad_items), [good]]
+    if isinstance(rng, validation.SweepPairs):  # not (field, values) pairs
+        return ["sac.tau=0.1", ["sac.tau", [0.1]], None]
     raise TypeError(f"no out-of-range values for range kind {rng!r}; teach this test")
 
 
@@ -107,6 +109,8 @@ def in_range(rng) -> list:
     if isinstance(rng, validation.NonEmptyTuple):
         items = in_range(rng.item)
         return [(items[0],), tuple(items)]
+    if isinstance(rng, validation.SweepPairs):
+        return [(), (("sac.tau", (0.1, 0.2)),)]
     raise TypeError(f"no in-range values for range kind {rng!r}; teach this test")
 
 
@@ -222,7 +226,8 @@ def test_out_of_range_refused_and_boundary_accepted(path):
         assert problem is None or problem == validation.cross_field_problem(cfg), problem
 
 
-@pytest.mark.parametrize("path", [p for p in PATHS if p not in ("env", "preset")])
+# env and preset are checked against their lists; --sweep's own tests: tests/test_sweep.py.
+@pytest.mark.parametrize("path", [p for p in PATHS if p not in ("env", "preset", "sweep")])
 def test_cli_refuses_out_of_range_values(path):
     """Through parse_args (preset + override): nothing out of range reaches the trainer."""
     rng = validation.field_ranges()[path]

@@ -198,7 +198,7 @@ def test_goal_value_breaks_ties_between_equally_novel_candidates():
         )
     )()  # fmt: skip
     assert np.linalg.norm(goals - ENV.goal_points, axis=-1).max() < 1.5
-    with pytest.raises(ValueError, match="goal_value_weight"):
+    with pytest.raises(ValueError, match="pool_obs"):  # the value term needs the states
         cur.propose(
             cfg,
             ENV,
@@ -209,6 +209,7 @@ def test_goal_value_breaks_ties_between_equally_novel_candidates():
             jnp.zeros(2),
             jax.random.key(0),
             gamma=GAMMA,
+            goal_value_fn=goal_value_fn,
         )
 
 
@@ -237,7 +238,7 @@ def test_trajectory_ending_at_a_mode_is_matched_to_it():
 
 def test_goal_noise_is_the_curriculum_config_s():
     """Goal j = its matched candidate (a subsampled pool state) + U[-c, c] noise with
-    c = cfg.goal_noise, or the traced `goal_noise` the trainer passes from its
+    c = cfg.goal_noise, or the traced `hp.goal_noise` the trainer passes from its
     hyperparameters: c = 0 gives the candidates exactly. The classifier's eps is no
     argument, and the discount has no default of its own (it is SACConfig.gamma)."""
     states = np.asarray(cur.subsample(POOL, CFG.cost_stride)).reshape(-1, 2)
@@ -251,7 +252,8 @@ def test_goal_noise_is_the_curriculum_config_s():
     traced = jax.jit(
         lambda c: cur.propose(
             dataclasses.replace(CFG, goal_noise=1.5), ENV, DIST, NO_PARAMS, POOL,
-            filled(POOL, 6), jnp.zeros(2), jax.random.key(0), gamma=GAMMA, goal_noise=c,
+            filled(POOL, 6), jnp.zeros(2), jax.random.key(0), gamma=GAMMA,
+            hp=cur.hyperparams(CFG).replace(goal_noise=c),
         )[0]
     )  # fmt: skip
     np.testing.assert_array_equal(traced(jnp.float32(0.0)), _propose(

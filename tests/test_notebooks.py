@@ -129,7 +129,9 @@ def test_quickstart_notebook(tmp_path, gl_backend):  # renders a video
 
 def test_seed_sweep_notebook(tmp_path):
     nb = run_notebook("02_seed_sweep.ipynb", tmp_path)
-    assert len(list((tmp_path / "sweep").glob("*/metrics.jsonl"))) == 2  # the two λ arms
+    (run,) = (tmp_path / "sweep").glob("*/metrics.jsonl")  # both λ arms in one run
+    last = json.loads(run.read_text().splitlines()[-1])
+    assert len(last["eval/success"]) == 2 * 2  # 2 arms x 2 seeds
     text = "".join(o.get("text", "") for o in outputs(nb, "stream"))
     assert "±" in text
 

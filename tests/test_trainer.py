@@ -148,15 +148,21 @@ def test_a_checkpoint_of_another_state_layout_is_refused_with_its_reason(tmp_pat
     """A state written by another version (other TrainState fields) is not restored into
     today's: RunError(2) saying so, not orbax's tree diff."""
     import jax.numpy as jnp
+    from flax import struct
 
     from d2c_jax.training import checkpoint
+
+    @struct.dataclass
+    class State:
+        a: jnp.ndarray
+        hparams: jnp.ndarray
 
     ckpt = runs.open_checkpointer(tmp_path)
     ckpt.save(1, {"a": jnp.zeros(3), "n_episodes": jnp.zeros((), jnp.int32)})
     ckpt.close()
     ckpt = runs.open_checkpointer(tmp_path)
     with pytest.raises(runs.RunError) as err:
-        runs.restore_or_fail(ckpt, {"a": jnp.zeros(3), "hparams": jnp.zeros(())}, tmp_path)
+        runs.restore_or_fail(ckpt, State(a=jnp.zeros(3), hparams=jnp.zeros(())), tmp_path)
     ckpt.close()
     assert err.value.status == 2
     assert "another layout" in str(err.value).splitlines()[0]
@@ -415,7 +421,7 @@ def test_config_round_trips_through_config_json():
     assert config.from_dict(config.TrainConfig, json.loads(runs.config_to_json(cfg))) == cfg
 
 
-def test_over_seeds_equals_vmap_with_and_without_a_size_one_axis():
+def test_over_runs_equals_vmap_with_and_without_a_size_one_axis():
     import jax
     import jax.numpy as jnp
 
@@ -429,6 +435,6 @@ def test_over_seeds_equals_vmap_with_and_without_a_size_one_axis():
             "b": jnp.asarray(rng.normal(size=(n, 5))),
         }
         want = jax.vmap(fn, in_axes=(0, None))(tree, 2.0)
-        got = agent_lib.over_seeds(fn, n, in_axes=(0, None))(tree, 2.0)
+        got = agent_lib.over_runs(fn, n, in_axes=(0, None))(tree, 2.0)
         assert jax.tree.map(jnp.shape, got) == jax.tree.map(jnp.shape, want)
         jax.tree.map(lambda g, w: np.testing.assert_allclose(g, w, rtol=1e-6), got, want)

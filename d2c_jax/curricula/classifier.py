@@ -80,6 +80,7 @@ class ClassifierHyperparams:
     lr: jax.Array  # () float32 Adam step size (Table 2: 1e-3)
     diversity_weight: jax.Array  # () float32 lambda of Eq. 5 (Table 3)
     marginal_weight: jax.Array  # () float32 mu of the marginal term (DEVIATIONS.md)
+    marginal_prior: jax.Array  # () float32 the marginal term's Bernoulli prior, in (0, 1)
     eps: jax.Array  # () float32 half-width c of the positives' noise (Table 3 eps)
 
 
@@ -89,6 +90,7 @@ def hyperparams(cfg: ClassifierConfig) -> ClassifierHyperparams:
         lr=np.float32(cfg.lr),
         diversity_weight=np.float32(cfg.diversity_weight),
         marginal_weight=np.float32(cfg.marginal_weight),
+        marginal_prior=np.float32(cfg.marginal_prior),
         eps=np.float32(cfg.eps),
     )
 
@@ -252,9 +254,9 @@ def loss(
     diversification, so lambda = 0 turns off both.
 
     Args:
-      cfg: classifier config (the marginal term's prior and group).
+      cfg: classifier config (the marginal term's group).
       net: the classifier module.
-      hp: the traced hyperparameters (lambda, mu).
+      hp: the traced hyperparameters (lambda, mu, the marginal prior).
       params: its parameters.
       batch: negatives, positives, uniform points and their shared conditioning goals.
     Returns:
@@ -272,7 +274,7 @@ def loss(
     # Diversity on unlabelled points (DivDis): the heads should be independent there.
     uni_probs = jax.nn.sigmoid(uni_logits)
     mi = mean_pairwise_mi(uni_probs)
-    marginal = marginal_kl(uni_probs, cfg.marginal_prior, cfg.marginal_group)
+    marginal = marginal_kl(uni_probs, hp.marginal_prior, cfg.marginal_group)
     diversity = mi + hp.marginal_weight * marginal
     total = bce_neg + bce_pos + hp.diversity_weight * diversity
     metrics = {

@@ -13,6 +13,8 @@ from typing import Callable
 
 import jax
 import jax.numpy as jnp
+import numpy as np
+from flax import struct
 
 from d2c_jax.config import CurriculumConfig
 from d2c_jax.core.types import Metrics
@@ -24,6 +26,31 @@ from envs import GoalEnv, goal_distance
 ValueFn = Callable[[jax.Array], jax.Array]
 # goal_value_fn(obs (P, T', o), goal (d,)) -> (P, T') V(s, g) = min_i Q_i(s, pi(s, g), g)
 GoalValueFn = Callable[[jax.Array, jax.Array], jax.Array]
+
+
+@struct.dataclass
+class CurriculumHyperparams:
+    """The curriculum's shape-keeping hyperparameters as traced values (leading run axis
+    when vmapped), so that a sweep can vmap over them (issue 13)."""
+
+    goal_noise: jax.Array  # () float32 half-width c of the goals' U[-c, c] noise (SPEC §5)
+    goal_value_weight: jax.Array  # () float32 beta of the value term of the edge costs
+    post_success_range: jax.Array  # () float32 r of the post-success candidates (SPEC §6)
+    post_success_threshold: jax.Array  # () float32 "outpace": the p a candidate needs
+    post_success_relax: jax.Array  # () float32 "outpace": the threshold's relaxing step
+    post_success_temperature: jax.Array  # () float32 "outpace": softmax temperature
+
+
+def hyperparams(cfg: CurriculumConfig) -> CurriculumHyperparams:
+    """The config's values as float32 scalars (host side)."""
+    return CurriculumHyperparams(
+        goal_noise=np.float32(cfg.goal_noise),
+        goal_value_weight=np.float32(cfg.goal_value_weight),
+        post_success_range=np.float32(cfg.post_success_range),
+        post_success_threshold=np.float32(cfg.post_success_threshold),
+        post_success_relax=np.float32(cfg.post_success_relax),
+        post_success_temperature=np.float32(cfg.post_success_temperature),
+    )
 
 
 def _noise_mask(env: GoalEnv) -> jax.Array:
@@ -230,15 +257,15 @@ def propose(
     gamma: float,
     pool_obs: jax.Array | None = None,
     goal_value_fn: GoalValueFn | None = None,
-    goal_noise: jax.Array | float | None = None,
+    hp: CurriculumHyperparams | None = None,
 ) -> tuple[jax.Array, Metrics]:
     """K curriculum goals (SPEC §5, Eq. 6-7).
 
     Variant "d2c": match slots to distinct pool trajectories by the auction on Eq. 7 costs;
     goal j = matched candidate + U[-c, c] * mask (c = the goal noise), clipped. "value": the same
     with w' = w - (1 - gamma) V(s0, phi(s)). "none": the slots themselves (fresh desired
-    examples). With `cfg.goal_value_weight` beta > 0, each edge cost also loses
-    beta (1 - gamma) V(s, g_j+) (`cost_matrix`). Until all pool entries are valid,
+    examples). With a `goal_value_fn`, each edge cost also loses beta (1 - gamma)
+    V(s, g_j+) (`cost_matrix`; beta = hp.goal_value_weight). Until all pool entries are valid,
     "d2c"/"value" return the warm-up goals.
     Trajectories that moved at most `cfg.pool_min_move` are matched only if nothing else
     is left. The matching always runs and `jnp.where` selects (no `lax.cond`): under vmap
@@ -256,15 +283,17 @@ def propose(
       value_fn: V over goals (P, T', d) -> (P, T'); required by variant "value".
       gamma: SAC discount (`SACConfig.gamma`), for the (1 - gamma) scale of the value
         terms ("+Value" and beta).
-      pool_obs: (P, T, o) observations of the pool states; needed when beta > 0.
-      goal_value_fn: V(s, g) over observations and one goal; needed when beta > 0.
-      goal_noise: c, a traced value (the trainer's `TrainState.hparams`); None:
-        cfg.goal_noise.
+      pool_obs: (P, T, o) observations of the pool states; needed with goal_value_fn.
+      goal_value_fn: V(s, g) over observations and one goal; None leaves the value term
+        out (the trainer passes one when some run has beta > 0).
+      hp: the traced c and beta (the trainer's `TrainState.hparams.curriculum`); None:
+        `hyperparams(cfg)`.
     Returns:
       goals (K, d) and metrics {"curriculum/distance" (paper §5.1, `matched_distance`),
       "curriculum/slot_distance" (each goal to its own slot), "curriculum/matched_cost",
       "curriculum/pool_full", "curriculum/auction_converged"}.
     """
+    hp = hyperparams(cfg) if hp is None else hp
     key_slots, key_noise, key_warm = jax.random.split(key, 3)
     slots = goal_slots(env, cfg.n_slots, key_slots)  # (K, d)
     if cfg.variant == "none":
@@ -274,23 +303,20 @@ def propose(
         if cfg.variant == "value" and value_fn is None:
             raise ValueError("curriculum variant 'value' needs a value_fn")
         fn = value_fn if cfg.variant == "value" else None
-        if cfg.goal_value_weight > 0 and (goal_value_fn is None or pool_obs is None):
-            raise ValueError("curriculum.goal_value_weight > 0 needs pool_obs and goal_value_fn")
-        use_goal_value = cfg.goal_value_weight > 0
+        if goal_value_fn is not None and pool_obs is None:
+            raise ValueError("a goal_value_fn needs pool_obs")
         cost, candidates = cost_matrix(
             net, params, slots, pool_ag, cfg.cost_stride, fn,
             value_scale=1.0 - gamma, tail_fraction=cfg.pool_tail_fraction,
-            pool_obs=pool_obs if use_goal_value else None,
-            goal_value_fn=goal_value_fn if use_goal_value else None,
-            goal_value_scale=cfg.goal_value_weight * (1.0 - gamma),
+            pool_obs=pool_obs, goal_value_fn=goal_value_fn,
+            goal_value_scale=hp.goal_value_weight * (1.0 - gamma),
         )  # fmt: skip
         if cfg.pool_min_move > 0:
             cost = jnp.where(moved(pool_ag, cfg.pool_min_move)[None], cost, _UNUSABLE_COST)
         solved = matching.auction_solve(cost, max_iters=cfg.auction_max_iters)
         cols, converged = solved.assignment, solved.converged  # (K,) distinct columns
         rows = jnp.arange(cfg.n_slots)
-        c = cfg.goal_noise if goal_noise is None else goal_noise  # SPEC §5's eps
-        noise = _uniform_noise(env, key_noise, slots.shape, c)
+        noise = _uniform_noise(env, key_noise, slots.shape, hp.goal_noise)  # SPEC §5's eps
         matched = candidates[rows, cols] + noise
         full = pool_full(pool_valid)
         warm = warmup_goals(env, start_goal, cfg.n_slots, key_warm)
@@ -338,29 +364,33 @@ def post_success_goal(
     params: dict,
     achieved_goal: jax.Array,
     key: jax.Array,
+    hp: CurriculumHyperparams | None = None,
 ) -> jax.Array:
     """The goal after the current one is reached (SPEC §6, Alg. 1 lines 8-9).
 
     C = cfg.post_success_candidates candidates phi(s_t) + U[-r, r] * mask (r =
-    cfg.post_success_range), clipped, scored by `candidate_scores`. Rule "argmax": the
+    hp.post_success_range), clipped, scored by `candidate_scores`. Rule "argmax": the
     best one wins. Rule "outpace" (OUTPACE's random walk): the candidates scoring at least
     the threshold (relaxed step by step until one does) are sampled by softmax(p / T), so
     the walk heads for uncertain places without always taking the same one. Vmappable.
 
     Args:
-      cfg: curriculum config (the post_success_* fields).
+      cfg: curriculum config (the rule and the candidate count).
       env: the environment; net, params: the classifier.
       achieved_goal: (d,) phi(s_t) where the goal was reached.
       key: PRNG key.
+      hp: the traced range, threshold, relaxing step and temperature; None:
+        `hyperparams(cfg)`.
     Returns:
       (d,) the new goal.
     """
+    hp = hyperparams(cfg) if hp is None else hp
     cands, scores = candidate_scores(
         env, net, params, achieved_goal, key,
-        cfg.post_success_candidates, cfg.post_success_range,
+        cfg.post_success_candidates, hp.post_success_range,
     )  # fmt: skip
     if cfg.post_success_rule == "argmax":
         return cands[jnp.argmax(scores)]
-    threshold = relaxed_threshold(scores, cfg.post_success_threshold, cfg.post_success_relax)
-    logits = jnp.where(scores >= threshold - 1e-6, scores / cfg.post_success_temperature, -jnp.inf)
+    threshold = relaxed_threshold(scores, hp.post_success_threshold, hp.post_success_relax)
+    logits = jnp.where(scores >= threshold - 1e-6, scores / hp.post_success_temperature, -jnp.inf)
     return cands[jax.random.categorical(jax.random.fold_in(key, 1), logits)]

@@ -28,6 +28,7 @@ from d2c_jax import config as config_lib
 from d2c_jax.core import her, networks, replay, rollout, sac
 from d2c_jax.core.types import RewardFn
 from d2c_jax.curricula import classifier, curriculum
+from d2c_jax.training import placement, sweep
 
 
 class Schedule(NamedTuple):
@@ -62,23 +63,25 @@ def make_schedule(cfg: config_lib.TrainConfig, horizon: int) -> Schedule:
 @struct.dataclass
 class Hyperparams:
     """The shape-keeping hyperparameters the step reads as traced values, not constants
-    compiled into the program, so that a sweep can vmap over them (issue 13). Built from
-    the config by `hyperparams`; the structural settings (sizes, cadences, rules) stay in
-    the config."""
+    compiled into the program, so that a sweep can vmap over them (issue 13): the fields
+    of `sweep.SWEEPABLE_FIELDS`. Built from the config by `hyperparams`; the structural
+    settings (sizes, cadences, rules) stay in the config."""
 
     sac: sac.SACHyperparams  # learning rates, tau, initial log alpha
-    classifier: classifier.ClassifierHyperparams  # learning rate, lambda, mu, eps
+    classifier: classifier.ClassifierHyperparams  # learning rate, lambda, mu, prior, eps
+    curriculum: curriculum.CurriculumHyperparams  # goal noise, beta, post-success rule
     relabel_prob: jax.Array  # () float32 HER's relabelling probability
-    goal_noise: jax.Array  # () float32 half-width c of the curriculum goals' noise
+    sparse_reward: jax.Array  # () bool the sparse ablation's reward instead of p_pseudo
 
 
 def hyperparams(cfg: config_lib.TrainConfig) -> Hyperparams:
-    """The config's hyperparameter values as float32 scalars (host side)."""
+    """The config's hyperparameter values as scalars (host side)."""
     return Hyperparams(
         sac=sac.hyperparams(cfg.sac),
         classifier=classifier.hyperparams(cfg.classifier),
+        curriculum=curriculum.hyperparams(cfg.curriculum),
         relabel_prob=np.float32(cfg.her.relabel_prob),
-        goal_noise=np.float32(cfg.curriculum.goal_noise),
+        sparse_reward=np.bool_(cfg.reward == "sparse"),
     )
 
 
@@ -94,7 +97,8 @@ class TrainState:
     sac: sac.SACState
     classifier: classifier.ClassifierState
     replay: replay.ReplayState
-    hparams: Hyperparams  # () float32 leaves: what a sweep may vmap over
+    hparams: Hyperparams  # () leaves: what a sweep vmaps over (set by the config, never
+    # learned: checkpoints leave them out and a resumed run takes them from config.json)
     desired: jax.Array  # (n_modes, examples_per_mode, goal_dim) desired examples, SPEC §1
     curriculum_goals: jax.Array  # (n_slots, goal_dim) the goals of the last matching
     matching_metrics: dict  # () float32 each: "curriculum/*" metrics of the last matching
@@ -132,26 +136,34 @@ class Agent:
     Holds everything static that one iteration is made of: the config, the env, the SAC
     networks and optimisers, the classifier and its optimiser, the static `Schedule` and
     the `HostConstants`. Its `init`, `step` and `evaluate` are pure functions of one
-    seed's state; `jit_step` and `jit_evaluate` compile them over seeds.
+    run's state; `jit_step` and `jit_evaluate` compile them over the run axis: the
+    sweep's arms x the seeds (`d2c_jax.training.sweep`), one run per seed without a sweep.
     """
 
     def __init__(self, cfg: config_lib.TrainConfig, env: envs.GoalEnv):
         self.cfg = cfg
         self.env = env
+        self.run_configs = sweep.run_configs(cfg)  # one per run, in run-axis order
+        self.num_runs = len(self.run_configs)
         self.sac_nets = networks.make_networks(cfg.sac, env)
         self.sac_optimizers = sac.make_optimizers()
         self.classifier_net = classifier.make_classifier(cfg.classifier, env)
         self.classifier_optimizer = classifier.make_optimizer()
         self.schedule = make_schedule(cfg, env.horizon)
         self.constants = host_constants(cfg, env)
+        # Swept hyperparameters that switch computations on: the program holds them
+        # when any run uses them, and the traced value makes them a no-op elsewhere.
+        self.uses_goal_value = any(c.curriculum.goal_value_weight != 0 for c in self.run_configs)
+        self.rewards = tuple(sorted({c.reward for c in self.run_configs}))
 
     # --- state ----------------------------------------------------------------------
 
-    def init(self, key: jax.Array) -> TrainState:
-        """A fresh TrainState for one seed (vmap it over seed keys for a sweep)."""
+    def init(self, key: jax.Array, hp: Hyperparams | None = None) -> TrainState:
+        """A fresh TrainState for one run: its seed's key and its hyperparameters (default:
+        the config's). vmap it over runs for a sweep (`init_runs`)."""
         cfg, env = self.cfg, self.env
         key, k_sac, k_clf, k_des = jax.random.split(key, 4)
-        hp = hyperparams(cfg)
+        hp = hyperparams(cfg) if hp is None else hp
         return TrainState(
             sac=sac.init_sac(self.sac_nets, self.sac_optimizers, env, hp.sac, k_sac),
             classifier=classifier.init_classifier(
@@ -169,9 +181,19 @@ class Agent:
             env_steps=jnp.zeros((), jnp.int32),
         )
 
+    def init_runs(self, run_ids=None) -> TrainState:
+        """TrainStates of the given runs (default: all, 0..num_runs-1), stacked on a
+        leading run axis (jitted). Run r has its arm's hyperparameters and seed
+        S + r % N, so it equals the single run of that arm and seed."""
+        run_ids = range(self.num_runs) if run_ids is None else run_ids
+        configs = [self.run_configs[r] for r in run_ids]
+        keys = jnp.stack([jax.random.key(c.seed) for c in configs])
+        hps = jax.tree.map(lambda *xs: np.stack(xs), *[hyperparams(c) for c in configs])
+        return jax.jit(jax.vmap(self.init))(keys, hps)
+
     def init_seeds(self) -> TrainState:
-        """TrainStates of seeds S..S+N-1, stacked on a leading (num_seeds,) axis (jitted)."""
-        return jax.jit(jax.vmap(self.init))(seed_keys(self.cfg))
+        """All runs' TrainStates (`init_runs`): seeds S..S+N-1 when nothing is swept."""
+        return self.init_runs()
 
     def policy(self, sac_state: sac.SACState, deterministic: bool = False) -> rollout.Policy:
         """The actor of one seed's SAC state; tanh of the mean when deterministic (SPEC §7)."""
@@ -252,7 +274,7 @@ class Agent:
             gamma=cfg.sac.gamma,
             pool_obs=pool_obs,
             goal_value_fn=goal_value_fn,
-            goal_noise=ts.hparams.goal_noise,
+            hp=ts.hparams.curriculum,
         )
         return goals, jax.tree.map(lambda x: x.astype(jnp.float32), metrics)
 
@@ -301,8 +323,8 @@ class Agent:
 
     def _goal_value_fn(self, ts: TrainState):
         """V(s, g) = min_i Q_i(s, pi(s, g), g) over pool observations (P, T', o) and one
-        goal (d,), for `curriculum.goal_value_weight`; None when that is 0."""
-        if self.cfg.curriculum.goal_value_weight == 0:
+        goal (d,), for `curriculum.goal_value_weight`; None when that is 0 in every run."""
+        if not self.uses_goal_value:
             return None
 
         def goal_value_fn(obs, goal):
@@ -335,8 +357,9 @@ class Agent:
 
         def next_goal(ag, k):
             return curriculum.post_success_goal(
-                cfg.curriculum, env, self.classifier_net, ts.classifier.params, ag, k
-            )
+                cfg.curriculum, env, self.classifier_net, ts.classifier.params, ag, k,
+                ts.hparams.curriculum,
+            )  # fmt: skip
 
         switch_every = cfg.curriculum.post_success_switch_every
         return rollout.collect(env, policy, next_goal, goals, cfg.num_envs, key, switch_every)
@@ -366,11 +389,16 @@ class Agent:
         # SAC metrics: the rounds' mean where rounds hold SAC updates, else the remainder's.
         return ts, {**rest, **jax.tree.map(jnp.mean, metrics)}
 
-    def reward_fn(self, clf_params) -> RewardFn:
-        """The reward of SPEC §4: intrinsic p_pseudo, or the sparse ablation."""
-        if self.cfg.reward == "sparse":
-            return her.sparse_reward_fn(self.env)
-        return classifier.make_reward_fn(self.classifier_net, clf_params)
+    def reward_fn(self, clf_params, sparse: jax.Array) -> RewardFn:
+        """The reward of SPEC §4: intrinsic p_pseudo, or the sparse ablation where the
+        traced `sparse` (() bool) says so; only the rewards some run uses are computed."""
+        sparse_fn = her.sparse_reward_fn(self.env)
+        intrinsic_fn = classifier.make_reward_fn(self.classifier_net, clf_params)
+        if self.rewards == ("sparse",):
+            return sparse_fn
+        if self.rewards == ("intrinsic",):
+            return intrinsic_fn
+        return lambda ag, g: jnp.where(sparse, sparse_fn(ag, g), intrinsic_fn(ag, g))
 
     def sac_block(self, ts: TrainState, key) -> tuple[TrainState, dict]:
         """`sac.block_size` SAC updates (critic each, actor and target on their cadences).
@@ -381,7 +409,7 @@ class Agent:
         """
         cfg = self.cfg
         k_batch, k_upd = jax.random.split(key)
-        reward_fn = self.reward_fn(ts.classifier.params)
+        reward_fn = self.reward_fn(ts.classifier.params, ts.hparams.sparse_reward)
         keys = jax.random.split(k_batch, sac.block_size(cfg.sac))
         prob, walk = ts.hparams.relabel_prob, cfg.replay.walk_fraction
         batches = jax.vmap(
@@ -411,11 +439,6 @@ class Agent:
         return ts.replace(classifier=new_clf), metrics
 
 
-def seed_keys(cfg: config_lib.TrainConfig) -> jax.Array:
-    """(num_seeds,) keys of seeds S..S+N-1: seed s of a sweep = a single run with seed s."""
-    return jnp.stack([jax.random.key(cfg.seed + i) for i in range(cfg.num_seeds)])
-
-
 def scan_updates(update, ts: TrainState, n: int, key):
     """`n` applications of update(ts, key) -> (ts, metrics) by lax.scan; mean metrics."""
     if n == 0:
@@ -431,17 +454,17 @@ def params_finite(ts: TrainState) -> jax.Array:
     return jnp.all(jnp.stack(floats))
 
 
-# --- the jit boundary over seeds ---------------------------------------------------------
+# --- the jit boundary over runs ----------------------------------------------------------
 
 
-def over_seeds(fn, num_seeds: int, in_axes: tuple):
-    """`jax.vmap(fn, in_axes)` over the leading seed axis, without a size-1 batch axis.
+def over_runs(fn, num_runs: int, in_axes: tuple):
+    """`jax.vmap(fn, in_axes)` over the leading run axis, without a size-1 batch axis.
 
-    With one seed, fn runs on the squeezed arguments and its outputs get the axis back:
+    With one run, fn runs on the squeezed arguments and its outputs get the axis back:
     the same function, but XLA's CPU matmuls then carry no size-1 batch dimension, which
     made the 3x512 SAC update 10% slower (measured 18.4 against 20.5 updates/s, 2 cores).
     """
-    if num_seeds != 1:
+    if num_runs != 1:
         return jax.vmap(fn, in_axes=in_axes)
 
     def single(*args):
@@ -454,21 +477,31 @@ def over_seeds(fn, num_seeds: int, in_axes: tuple):
     return single
 
 
-def jit_step(agent: Agent):
-    """THE jit boundary: `agent.step` vmapped over the leading seed axis of TrainState.
+def jit_step(agent: Agent, mesh=None, runs_per_device: int | None = None):
+    """THE jit boundary: `agent.step` vmapped over the leading run axis of TrainState.
 
+    Args:
+      agent: the agent.
+      mesh: a one-axis device mesh (`placement.run_mesh`) to split the run axis over, or
+        None for one device.
+      runs_per_device: runs in each device's block; default: all of `agent.num_runs`.
     Returns:
-      step(ts) -> (ts, metrics): every leaf of ts and metrics is batched over seeds; ts is
+      step(ts) -> (ts, metrics): every leaf of ts and metrics is batched over runs; ts is
       donated.
     """
-    return jax.jit(over_seeds(agent.step, agent.cfg.num_seeds, in_axes=(0,)), donate_argnums=0)
+    n = agent.num_runs if runs_per_device is None else runs_per_device
+    step = placement.shard_runs(over_runs(agent.step, n, in_axes=(0,)), mesh)
+    return jax.jit(step, donate_argnums=0)
 
 
-def jit_evaluate(agent: Agent):
-    """Jitted SPEC §7 evaluation, vmapped over seeds: (ts, keys (num_seeds,)) -> metrics."""
-    return jax.jit(over_seeds(agent.evaluate, agent.cfg.num_seeds, in_axes=(0, 0)))
+def jit_evaluate(agent: Agent, mesh=None, runs_per_device: int | None = None):
+    """Jitted SPEC §7 evaluation over runs: (ts, keys (runs,)) -> metrics (`jit_step`'s
+    arguments)."""
+    n = agent.num_runs if runs_per_device is None else runs_per_device
+    evaluate = placement.shard_runs(over_runs(agent.evaluate, n, in_axes=(0, 0)), mesh)
+    return jax.jit(evaluate)
 
 
 def make_train_step(cfg: config_lib.TrainConfig, env: envs.GoalEnv):
-    """`jit_step` of a new `Agent(cfg, env)`: step(ts) -> (ts, metrics) over seeds."""
+    """`jit_step` of a new `Agent(cfg, env)`: step(ts) -> (ts, metrics) over all runs."""
     return jit_step(Agent(cfg, env))

@@ -9,9 +9,11 @@ from __future__ import annotations
 
 import contextlib
 import logging
+import os
 import pathlib
 
 import jax
+import numpy as np
 import orbax.checkpoint as ocp
 
 # orbax logs every save at INFO; the trainer reports checkpoints itself.
@@ -92,3 +94,68 @@ class Checkpointer:
     def close(self) -> None:
         """Finishes pending writes."""
         self._manager.close()
+
+
+class HostCheckpointer:
+    """`Checkpointer`'s interface for one process of a multi-process job: its own runs'
+    state as one .npz file per step, in host memory.
+
+    Orbax coordinates every save across all processes of a job (its signals and
+    metadata merges are keyed by step, not by directory), which process-local arrays
+    saved by each process on its own do not fit. Each file is written under a temporary
+    name and renamed when complete (atomic on POSIX), so a killed save leaves the last
+    complete step; the last `max_to_keep` are kept.
+    """
+
+    def __init__(self, directory: str | pathlib.Path, max_to_keep: int = 3):
+        self.directory = pathlib.Path(directory).absolute()
+        self.directory.mkdir(parents=True, exist_ok=True)
+        self.max_to_keep = max_to_keep
+
+    def _path(self, step: int) -> pathlib.Path:
+        return self.directory / f"step-{step}.npz"
+
+    def _steps(self) -> list[int]:
+        names = (p.name for p in self.directory.glob("step-*.npz"))
+        return sorted(int(n[len("step-") : -len(".npz")]) for n in names)
+
+    def latest_step(self) -> int | None:
+        steps = self._steps()
+        return steps[-1] if steps else None
+
+    def save(self, step: int, tree) -> None:
+        leaves = jax.tree.leaves(jax.device_get(_to_storable(tree)))
+        tmp = self.directory / f".step-{step}.npz.tmp"
+        with open(tmp, "wb") as f:
+            np.savez(f, *leaves)
+            f.flush()
+            os.fsync(f.fileno())
+        tmp.replace(self._path(step))
+        for old in self._steps()[: -self.max_to_keep]:
+            self._path(old).unlink(missing_ok=True)
+
+    def restore(self, step: int, like):
+        """The state at `step` as host arrays in the structure of `like` (shapes and
+        dtypes checked leaf by leaf).
+
+        Raises:
+          CheckpointError: if it is missing, unreadable or of another layout.
+        """
+        path = self._path(step)
+        storable = _to_storable(like)
+        treedef = jax.tree.structure(storable)
+        try:
+            with np.load(path) as stored:
+                leaves = [stored[f"arr_{i}"] for i in range(len(stored.files))]
+        except (OSError, ValueError, KeyError) as err:
+            raise CheckpointError(f"cannot read checkpoint {path}: {err}") from err
+        wanted = [(tuple(x.shape), np.dtype(x.dtype)) for x in jax.tree.leaves(storable)]
+        if [(x.shape, x.dtype) for x in leaves] != wanted:
+            raise CheckpointError(
+                f"cannot read checkpoint {path}: its state has another layout (written by "
+                "another version of d2c_jax, or with other settings)"
+            )
+        return _from_storable(jax.tree.unflatten(treedef, leaves), like)
+
+    def close(self) -> None:
+        """Nothing pending: saves are synchronous."""

@@ -103,7 +103,94 @@ def _parser() -> argparse.ArgumentParser:
     parser.add_argument("--total-steps", type=int, default=None, help="env steps to train")
     parser.add_argument("--out", default=None, help="run directory")
     parser.add_argument("--resume", action="store_true", help="continue the run in --out")
+    parser.add_argument(
+        "--sweep",
+        action="append",
+        default=[],
+        metavar="FIELD=V1,V2,...",
+        help="sweep a hyperparameter (repeatable): every combination of the values, each "
+        "with seeds S..S+N-1, runs as one program; e.g. classifier.diversity-weight=0,1",
+    )
+    hosts = parser.add_argument_group(
+        "several processes (hosts)", "each process runs its share of the runs (README, Scaling out)"
+    )
+    hosts.add_argument("--coordinator", default=None, help="HOST:PORT of process 0")
+    hosts.add_argument("--num-processes", type=int, default=None, help="processes in the job")
+    hosts.add_argument("--process-id", type=int, default=None, help="this process, 0..P-1")
+    hosts.add_argument(
+        "--distributed",
+        action="store_true",
+        help="join a multi-process job whose settings the cluster scheduler sets (SLURM, ...)",
+    )
     return parser
+
+
+class Processes(typing.NamedTuple):
+    """How this process joins a multi-process job (`jax.distributed`)."""
+
+    coordinator: str | None
+    num_processes: int | None
+    process_id: int | None
+
+
+def parse_processes(argv: list[str]) -> Processes | None:
+    """The multi-process options, or None for a single-process run.
+
+    Raises:
+      UsageError: an incomplete or inconsistent set of options.
+    """
+    known, _ = _parser().parse_known_args(argv)
+    explicit = (known.coordinator, known.num_processes, known.process_id)
+    if all(v is None for v in explicit):
+        return Processes(None, None, None) if known.distributed else None
+    if any(v is None for v in explicit):
+        raise UsageError(
+            "--coordinator, --num-processes and --process-id go together "
+            "(or --distributed alone, with the settings the cluster scheduler sets)"
+        )
+    if known.num_processes < 1:
+        raise UsageError(f"--num-processes must be >= 1, got {known.num_processes}")
+    if not 0 <= known.process_id < known.num_processes:
+        raise UsageError(
+            f"--process-id must be in [0, {known.num_processes - 1}], got {known.process_id}"
+        )
+    return Processes(*explicit)
+
+
+def _field_hint(cfg, dotted: str):
+    """The type annotation of the field at dotted path `dotted` of `cfg`."""
+    head, _, rest = dotted.partition(".")
+    if rest:
+        return _field_hint(getattr(cfg, head), rest)
+    return _field_types(type(cfg))[head]
+
+
+def parse_sweep(cfg, spec: str):
+    """`cfg` with the arm values of one `--sweep FIELD=V1,V2,...` appended to cfg.sweep.
+
+    Raises:
+      UsageError: a spec without '=', an unknown or unsweepable field, an empty value,
+        or a value of the wrong type.
+    """
+    from d2c_jax.training import sweep
+
+    name, eq, text = spec.partition("=")
+    if not eq or not name or not text:
+        raise UsageError(f"--sweep {spec!r} must be FIELD=V1,V2,... (e.g. sac.tau=0.005,0.01)")
+    field = name.replace("-", "_")
+    if not _has_field(cfg, field) or dataclasses.is_dataclass(config_lib.get_field(cfg, field)):
+        raise UsageError(f"--sweep {name}: unknown field; sweepable: {sweep.sweepable_list()}")
+    if field not in sweep.SWEEPABLE_FIELDS:
+        raise UsageError(
+            f"--sweep {name}: cannot be swept (it changes shapes or static counts, or is "
+            f"not a hyperparameter); sweepable: {sweep.sweepable_list()}"
+        )
+    texts = text.split(",")
+    if any(not t.strip() for t in texts):
+        raise UsageError(f"--sweep {spec!r}: empty value in the list {text!r}")
+    hint = _field_hint(cfg, field)
+    values = tuple(_convert(t.strip(), hint, f"sweep {name}") for t in texts)
+    return dataclasses.replace(cfg, sweep=cfg.sweep + ((field, values),))
 
 
 NO_ACCELERATOR_NOTICE = (
@@ -164,6 +251,8 @@ def parse_args(
                 raise UsageError(f"--{option} needs a value")
             value = rest.pop(0)
         cfg = apply_override(cfg, option.replace("-", "_"), value, option)
+    for spec in known.sweep:
+        cfg = parse_sweep(cfg, spec)
     # Every field's range and the constraints between fields, whatever preset and
     # overrides built the config: nothing invalid reaches the trainer.
     problem = validation.validate(cfg)
@@ -192,8 +281,14 @@ def main(argv: list[str] | None = None) -> int:
     from d2c_jax.training import loop
 
     enable_compilation_cache()
+    argv = sys.argv[1:] if argv is None else argv
     try:
-        cfg, out, resume = parse_args(sys.argv[1:] if argv is None else argv, notify=print)
+        processes = parse_processes(argv)
+        if processes is not None:  # before anything starts a JAX backend
+            from d2c_jax.training import placement
+
+            placement.initialize_processes(*processes)
+        cfg, out, resume = parse_args(argv, notify=print)
         return loop.train(cfg, out, resume=resume)
     except UsageError as err:
         print(f"error: {err}", file=sys.stderr)

@@ -22,7 +22,7 @@ import envs
 from d2c_jax import config as config_lib
 from d2c_jax.training import agent as agent_lib
 from d2c_jax.training import logging as logging_lib
-from d2c_jax.training import runs
+from d2c_jax.training import placement, runs, sweep
 from d2c_jax.training.runs import RunError  # noqa: F401  (raised here; the CLI catches it)
 
 # --- signals --------------------------------------------------------------------------
@@ -92,10 +92,10 @@ class ProgressBar:
         )
 
 
-def host_metrics(metrics: dict, num_seeds: int) -> dict:
-    """Device metrics (leading seed axis) to host values: scalars for one seed, else lists."""
-    metrics = jax.device_get(metrics)
-    if num_seeds == 1:
+def host_metrics(metrics: dict, num_runs: int) -> dict:
+    """Host metrics of the real runs (leading run axis) to row values: scalars for one
+    run, else arrays with one entry per run."""
+    if num_runs == 1:
         return {k: np.asarray(v)[0] for k, v in metrics.items()}
     return {k: np.asarray(v) for k, v in metrics.items()}
 
@@ -137,29 +137,51 @@ def train(cfg: config_lib.TrainConfig, out, resume: bool = False, quiet: bool = 
     """Runs (or resumes) training into run directory `out`; returns the exit status
     (0, or 128 + the signal that stopped it).
 
+    The run axis (arms x seeds) is split over this job's processes and devices
+    (`placement`); with several processes, process 0 writes config.json, metrics.jsonl
+    and the plots, and every process checkpoints its own runs.
+
     Raises:
-      RunError: bad run directory or checkpoint (status 2), non-finite values (status 3).
+      RunError: bad run directory or checkpoint, or runs that do not fit in memory
+        (status 2); non-finite values (status 3).
     """
     out = pathlib.Path(out)
     env = envs.make(cfg.env)
-    runs.prepare_run_dir(out, cfg, resume)  # bad input fails here, before any compile
+    layout = placement.make_layout(sweep.n_runs(cfg))
+    lead = layout.process_index == 0
+    quiet = quiet or not lead
+    if lead:
+        runs.prepare_run_dir(out, cfg, resume)  # bad input fails here, before any compile
+    placement.sync_processes(layout, "run directory ready")
     agent = agent_lib.Agent(cfg, env)
+    problem = memory_problem(agent, layout)
+    if problem:
+        raise RunError(problem, 2)
     if not quiet:
-        print(describe(cfg, agent.schedule), flush=True)
-    ckpt = runs.open_checkpointer(out)
+        print(describe(cfg, agent.schedule, layout), flush=True)
+    mesh = placement.run_mesh(layout)
+    ckpt = runs.open_checkpointer(out, layout)
     try:
-        start, ts = _initial_state(agent, ckpt, out, resume)
+        start, ts = _initial_state(agent, layout, mesh, ckpt, out, resume)
         clock = Stopwatch()
         # Compiled ahead of time, so time/compile_s is apart from the first iteration.
+        n = layout.runs_per_device
+        keys = eval_keys(agent, layout, mesh, 0)
         steps = _Compiled(
-            train=agent_lib.jit_step(agent).lower(ts).compile(),
-            evaluate=agent_lib.jit_evaluate(agent).lower(ts, eval_keys(cfg, 0)).compile(),
+            train=agent_lib.jit_step(agent, mesh, n).lower(ts).compile(),
+            evaluate=agent_lib.jit_evaluate(agent, mesh, n).lower(ts, keys).compile(),
         )
-        with logging_lib.MetricsWriter(out / "metrics.jsonl") as writer:
-            status = _iterate(agent, steps, ts, start, ckpt, writer, clock, quiet)
+        writer = logging_lib.MetricsWriter(out / "metrics.jsonl") if lead else None
+        try:
+            loop = _Loop(agent, layout, mesh, steps, ckpt, writer, clock)
+            status = loop.run(ts, start, quiet)
+        finally:
+            if writer is not None:
+                writer.close()
     finally:
         ckpt.close()
-    runs.write_plots(out, env)
+    if lead:
+        runs.write_plots(out, env)
     return status
 
 
@@ -170,55 +192,98 @@ class _Compiled(NamedTuple):
     evaluate: object
 
 
-def _initial_state(agent: agent_lib.Agent, ckpt, out: pathlib.Path, resume: bool):
-    """(iterations done, TrainState): fresh, or the newest checkpoint with metrics.jsonl cut
-    back to it."""
-    ts = agent.init_seeds()
+def memory_problem(agent: agent_lib.Agent, layout: placement.RunLayout) -> str | None:
+    """A one-line message when this process's runs do not fit in memory, else None.
+
+    Estimated before compiling, from the state's shapes (`placement.state_bytes`):
+    on a CPU the runs' states and a checkpoint's host copy of them must fit in the
+    available RAM; on an accelerator each device's block of states, with a quarter
+    more for the step's temporaries, must fit in that device's memory.
+    """
+    per_run = placement.state_bytes(agent.init, agent_lib.hyperparams(agent.cfg))
+    device = jax.local_devices()[0]
+    if device.platform == "cpu":
+        need, have = 2 * layout.local_size * per_run, placement.available_host_bytes()
+        where = "of RAM"
+    else:
+        need = 1.25 * layout.runs_per_device * per_run
+        have = placement.device_memory_bytes(device)
+        where = f"per {device.platform.upper()} device"
+    if have is None or need <= have:
+        return None
+    gib = 2.0**30
+    return (
+        f"{layout.local_size} runs need about {need / gib:.1f} GiB {where} "
+        f"({per_run / gib:.2f} GiB of state per run) but {have / gib:.1f} GiB is available; "
+        "use fewer --seeds or sweep values, more devices, or a smaller --replay.capacity"
+    )
+
+
+def _initial_state(agent, layout, mesh, ckpt, out: pathlib.Path, resume: bool):
+    """(iterations done, this process's TrainState): fresh, or the newest checkpoint
+    every process has, with metrics.jsonl cut back to it."""
+    ts = placement.place(agent.init_runs(layout.local_run_ids()), mesh)
     metrics_path = out / "metrics.jsonl"
+    lead = layout.process_index == 0
     if not resume:
-        metrics_path.unlink(missing_ok=True)
+        if lead:
+            metrics_path.unlink(missing_ok=True)
         return 0, ts
-    start, ts = runs.restore_or_fail(ckpt, ts, out)
+    start, ts = runs.restore_or_fail(ckpt, ts, out, layout)
     # A run stopped by a signal evaluated at its last iteration; an uninterrupted run
     # evaluates there only on schedule, so drop an unscheduled evaluation.
     strip = () if is_eval_iteration(start, agent.schedule) else ("eval/", "curriculum/goals")
-    logging_lib.truncate_metrics(metrics_path, start, strip_last=strip)
+    if lead:
+        logging_lib.truncate_metrics(metrics_path, start, strip_last=strip)
     return start, ts
 
 
-def _iterate(agent, steps: _Compiled, ts, start: int, ckpt, writer, clock, quiet: bool) -> int:
-    """Iterations start..total (or until a stop signal); returns the exit status."""
-    cfg, sched = agent.cfg, agent.schedule
-    timing = {"time/compile_s": clock.lap()}
-    with catch_stop_signals() as stop, make_progress() as progress:
-        bar = ProgressBar(progress, cfg.env, sched, start, quiet)
-        for it in range(start, sched.total_iterations):
-            ts, metrics = steps.train(ts)
-            last = it + 1 == sched.total_iterations or stop.signal is not None
-            row = host_metrics(metrics, cfg.num_seeds)
-            check_finite(row, it + 1)
-            if is_eval_iteration(it + 1, sched) or last:
-                row.update(_evaluation(steps, ts, cfg, it + 1))
-            lap = clock.lap()
-            writer.write(_row(it + 1, sched, row, lap, clock, timing))
-            if timing and not quiet:  # the first iteration of this process
-                left = (sched.total_iterations - it - 1) * lap / 60
-                progress.console.print(f"  estimated time to finish: {left:.1f} min")
-            timing = {}
-            bar.update(it + 1, lap, row)
-            if last or (it + 1) % sched.checkpoint_every == 0:
-                ckpt.save(it + 1, ts)
-            if stop.signal is not None:
-                return 128 + stop.signal
-    return 0
+class _Loop:
+    """Iterations of one process: step, gather, evaluate, write, checkpoint."""
 
+    def __init__(self, agent, layout, mesh, steps: _Compiled, ckpt, writer, clock):
+        self.agent, self.layout, self.mesh, self.steps = agent, layout, mesh, steps
+        self.ckpt, self.writer, self.clock = ckpt, writer, clock
 
-def _evaluation(steps: _Compiled, ts, cfg: config_lib.TrainConfig, iteration: int) -> dict:
-    """The evaluation metrics and the curriculum goals (first seed's for one seed)."""
-    row = host_metrics(steps.evaluate(ts, eval_keys(cfg, iteration)), cfg.num_seeds)
-    goals = jax.device_get(ts.curriculum_goals)
-    row["curriculum/goals"] = goals[0] if cfg.num_seeds == 1 else goals
-    return row
+    def run(self, ts, start: int, quiet: bool) -> int:
+        """Iterations start..total (or until a stop signal); returns the exit status."""
+        sched, layout = self.agent.schedule, self.layout
+        timing = {"time/compile_s": self.clock.lap()}
+        with catch_stop_signals() as stop, make_progress() as progress:
+            bar = ProgressBar(progress, self.agent.cfg.env, sched, start, quiet)
+            for it in range(start, sched.total_iterations):
+                ts, metrics = self.steps.train(ts)
+                # Every process must take the same branches (the gathers are collectives).
+                stopping = placement.any_process(layout, stop.signal is not None)
+                last = it + 1 == sched.total_iterations or stopping
+                row = host_metrics(placement.gather_runs(metrics, layout), layout.n_runs)
+                check_finite(row, it + 1)
+                if is_eval_iteration(it + 1, sched) or last:
+                    row.update(self._evaluation(ts, it + 1))
+                lap = self.clock.lap()
+                if self.writer is not None:
+                    self.writer.write(_row(it + 1, sched, row, lap, self.clock, timing))
+                if timing and not quiet:  # the first iteration of this process
+                    left = (sched.total_iterations - it - 1) * lap / 60
+                    progress.console.print(f"  estimated time to finish: {left:.1f} min")
+                timing = {}
+                bar.update(it + 1, lap, row)
+                if last or (it + 1) % sched.checkpoint_every == 0:
+                    runs.save_state(self.ckpt, it + 1, ts)
+                if stopping:
+                    return 128 + (stop.signal or signal.SIGTERM)
+        return 0
+
+    def _evaluation(self, ts, iteration: int) -> dict:
+        """The evaluation metrics and the curriculum goals of the real runs."""
+        keys = eval_keys(self.agent, self.layout, self.mesh, iteration)
+        gathered = placement.gather_runs(
+            {"eval": self.steps.evaluate(ts, keys), "goals": ts.curriculum_goals}, self.layout
+        )
+        row = host_metrics(gathered["eval"], self.layout.n_runs)
+        goals = gathered["goals"]
+        row["curriculum/goals"] = goals[0] if self.layout.n_runs == 1 else goals
+        return row
 
 
 def _row(iteration: int, sched, metrics: dict, lap: float, clock, timing: dict) -> dict:
@@ -234,14 +299,14 @@ def _row(iteration: int, sched, metrics: dict, lap: float, clock, timing: dict) 
     }
 
 
-def eval_keys(cfg: config_lib.TrainConfig, iteration: int) -> jax.Array:
-    """Evaluation keys per seed, a pure function of (seed, iteration): resume-safe."""
-    return jnp.stack(
-        [
-            jax.random.fold_in(jax.random.key(cfg.seed + i + 10_000), iteration)
-            for i in range(cfg.num_seeds)
-        ]
+def eval_keys(agent: agent_lib.Agent, layout: placement.RunLayout, mesh, iteration: int):
+    """Evaluation keys of this process's rows, a pure function of (the run's seed,
+    iteration): resume-safe, and a sweep arm's equal the single run's."""
+    seeds = [agent.run_configs[r].seed for r in layout.local_run_ids()]
+    keys = jnp.stack(
+        [jax.random.fold_in(jax.random.key(seed + 10_000), iteration) for seed in seeds]
     )
+    return placement.place(keys, mesh)
 
 
 def is_eval_iteration(iteration: int, sched: agent_lib.Schedule) -> bool:
@@ -249,12 +314,21 @@ def is_eval_iteration(iteration: int, sched: agent_lib.Schedule) -> bool:
     return iteration % sched.eval_every == 0
 
 
-def describe(cfg: config_lib.TrainConfig, sched: agent_lib.Schedule) -> str:
-    """The run's first lines: env, preset, seeds, device, and the schedule."""
+def describe(cfg: config_lib.TrainConfig, sched: agent_lib.Schedule, layout=None) -> str:
+    """The run's first lines: env, preset, runs, devices, and the schedule."""
+    device = jax.devices()[0]
+    runs_line = f"seeds {cfg.seed}..{cfg.seed + cfg.num_seeds - 1}"
+    if cfg.sweep:
+        fields = ", ".join(sweep.flag_spelling(f) for f, _ in cfg.sweep)
+        runs_line += f" x {sweep.n_arms(cfg)} arms ({fields}) = {sweep.n_runs(cfg)} runs"
+    where = f"device {device.platform}:{device.device_kind}"
+    if layout is not None and (layout.n_processes > 1 or layout.n_local_devices > 1):
+        where += (
+            f" x {layout.n_local_devices} per process x {layout.n_processes} processes, "
+            f"{layout.local_size} runs per process"
+        )
     return (
-        f"d2c_jax: env {cfg.env}, preset {cfg.preset}, "
-        f"seeds {cfg.seed}..{cfg.seed + cfg.num_seeds - 1}"
-        f", device {jax.devices()[0].platform}:{jax.devices()[0].device_kind}\n"
+        f"d2c_jax: env {cfg.env}, preset {cfg.preset}, {runs_line}, {where}\n"
         f"  {sched.total_iterations} iterations x {sched.env_steps} env steps, "
         f"{sched.sac_updates} SAC + {sched.classifier_updates} classifier updates each, "
         f"warm-up {sched.warmup_iterations}, eval every {sched.eval_every}"

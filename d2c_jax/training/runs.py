@@ -6,6 +6,7 @@ trained run (config, env, newest state) and holds the two commands that read run
 
     python -m d2c_jax.render RUN_DIR [--out RUN_DIR/policy.gif] [--still strip.png]
     python -m d2c_jax.plots RUN_DIR
+    python -m d2c_jax.plots compare RUN_DIR [RUN_DIR ...] [--out compare.png]
 """
 
 from __future__ import annotations
@@ -25,6 +26,7 @@ from d2c_jax.core import networks, rollout, sac
 from d2c_jax.training import agent as agent_lib
 from d2c_jax.training import checkpoint as checkpoint_lib
 from d2c_jax.training import logging as logging_lib
+from d2c_jax.training import placement
 from d2c_jax.viewing import plots, render
 
 
@@ -99,20 +101,51 @@ def _run_dir_errors(out: pathlib.Path, action: str):
 # --- checkpoints ------------------------------------------------------------------------
 
 
-def open_checkpointer(out: pathlib.Path) -> checkpoint_lib.Checkpointer:
-    """The run's checkpointer (keeps the last 3)."""
-    return checkpoint_lib.Checkpointer(out / "checkpoints", max_to_keep=3)
+def checkpoint_dir(out: pathlib.Path, layout: placement.RunLayout | None = None) -> pathlib.Path:
+    """Where this process keeps its runs' checkpoints: `checkpoints/`, or with several
+    processes `checkpoints/process-<p>-of-<P>/` (each process saves only its own runs)."""
+    if layout is None or layout.n_processes == 1:
+        return out / "checkpoints"
+    return out / "checkpoints" / f"process-{layout.process_index}-of-{layout.n_processes}"
 
 
-def restore_or_fail(ckpt: checkpoint_lib.Checkpointer, like, out: pathlib.Path):
-    """(iteration, state) of the newest checkpoint; RunError(2) when none or unreadable."""
+def open_checkpointer(
+    out: pathlib.Path, layout: placement.RunLayout | None = None
+) -> checkpoint_lib.Checkpointer:
+    """This process's checkpointer (keeps the last 3): orbax's, or with several processes
+    each process's own `HostCheckpointer`."""
+    if layout is None or layout.n_processes == 1:
+        return checkpoint_lib.Checkpointer(checkpoint_dir(out, layout), max_to_keep=3)
+    return checkpoint_lib.HostCheckpointer(checkpoint_dir(out, layout), max_to_keep=3)
+
+
+def save_state(ckpt: checkpoint_lib.Checkpointer, iteration: int, ts) -> None:
+    """Checkpoints a TrainState without its hyperparameters: they are the config's
+    (config.json), so a resumed run takes them from there, and a state of an older
+    version whose hyperparameters were fewer still restores."""
+    ckpt.save(iteration, ts.replace(hparams=None))
+
+
+def restore_or_fail(
+    ckpt: checkpoint_lib.Checkpointer, like, out: pathlib.Path, layout=None
+) -> tuple[int, object]:
+    """(iteration, state) of the newest checkpoint (with several processes: the newest
+    that every process has), restored into `like`'s shapes and shardings with `like`'s
+    hyperparameters, on `like`'s devices; RunError(2) when none or unreadable."""
     step = ckpt.latest_step()
+    if layout is not None:
+        step = placement.min_over_processes(layout, -1 if step is None else step)
+        step = None if step < 0 else step
     if step is None:
-        raise RunError(f"nothing to resume: no checkpoint in {out / 'checkpoints'}", 2)
+        raise RunError(f"nothing to resume: no checkpoint in {checkpoint_dir(out, layout)}", 2)
     try:
-        return step, ckpt.restore(step, like)
+        stored_like = like.replace(hparams=None)
+        restored = ckpt.restore(step, stored_like)
     except checkpoint_lib.CheckpointError as err:
         raise RunError(str(err), 2) from None
+    # On the devices (and shardings) of `like`: a no-op where orbax restored them there.
+    restored = jax.tree.map(lambda x, y: jax.device_put(x, y.sharding), restored, stored_like)
+    return step, restored.replace(hparams=like.hparams)
 
 
 # --- trained runs -----------------------------------------------------------------------
@@ -162,11 +195,17 @@ def trained_policy(cfg, env, ts, seed_index: int = 0):
 
 def write_plots(out: pathlib.Path, env) -> None:
     """The run's plots from its metrics.jsonl: success per mode, curriculum goals over the
-    map (paper Fig. 8), curriculum distance."""
+    map (paper Fig. 8), curriculum distance and, for several runs (a sweep or
+    num_seeds > 1), eval success per sweep arm (sweep_success.png)."""
     rows = logging_lib.read_metrics(out / "metrics.jsonl")
     plots.success_curve(rows, env.n_modes, out / "plots" / "success.png")
     plots.curriculum_snapshots(rows, env, out / "plots" / "curriculum.png")
     plots.metric_curve(rows, "curriculum/distance", out / "plots" / "curriculum_distance.png")
+    cfg = read_config(out)
+    sweep = getattr(cfg, "sweep", ())  # a config from before sweeps: one arm
+    if sweep or cfg.num_seeds > 1:
+        path = out / "plots" / "sweep_success.png"
+        plots.sweep_success_curves(rows, sweep, cfg.num_seeds, path)
 
 
 def render_policy(
@@ -227,19 +266,56 @@ def render_main(argv=None) -> int:
 
 
 def plots_main(argv=None) -> int:
-    """`python -m d2c_jax.plots RUN_DIR`: redraws RUN_DIR/plots from its metrics."""
-    parser = argparse.ArgumentParser(description="Redraw a run's plots from its metrics.")
-    parser.add_argument("run_dir", help="a run directory written by train.py")
-    args = parser.parse_args(argv)
-    run_dir = pathlib.Path(args.run_dir)
+    """`python -m d2c_jax.plots RUN_DIR` redraws RUN_DIR/plots from its metrics;
+    `python -m d2c_jax.plots compare RUN_DIR [RUN_DIR ...] [--out FILE]` draws the eval
+    success of several runs in one figure (default ./compare.png).
+
+    A first argument `compare` is always the subcommand (a run directory of that name is
+    redrawn as `./compare`). Returns 0, or 2 with a one-line `error: ...` on stderr.
+    """
+    argv = sys.argv[1:] if argv is None else list(argv)
+    compare = argv[:1] == ["compare"]
+    prog = "python -m d2c_jax.plots"
+    if compare:
+        parser = argparse.ArgumentParser(
+            prog=f"{prog} compare",
+            description="Draw the eval success of several runs in one figure: mean +- std "
+            "over each directory's seeds, one curve per arm for a sweep.",
+        )
+        # nargs="*" and a check below: argparse's own "required" error is two lines.
+        parser.add_argument("run_dirs", nargs="*", metavar="RUN_DIR", help="run directories")
+        parser.add_argument("--out", default="compare.png", help="figure path (.png)")
+        args = parser.parse_args(argv[1:])
+        run_dirs = [pathlib.Path(d) for d in args.run_dirs]
+    else:
+        parser = argparse.ArgumentParser(
+            prog=prog,
+            description="Redraw a run's plots (RUN_DIR/plots) from its metrics.",
+            epilog=f"Also: {prog} compare RUN_DIR [RUN_DIR ...] [--out FILE] draws several "
+            "runs in one figure. A first argument 'compare' is always that subcommand; "
+            "redraw a run directory named compare as ./compare.",
+        )
+        parser.add_argument("run_dir", help="a run directory written by train.py")
+        run_dirs = [pathlib.Path(parser.parse_args(argv).run_dir)]
     try:
-        env = envs.make(read_config(run_dir).env)
-        if not (run_dir / "metrics.jsonl").is_file():
-            raise RunError(f"{run_dir} has no metrics.jsonl", 2)
-        (run_dir / "plots").mkdir(exist_ok=True)
-        write_plots(run_dir, env)
-    except RunError as err:
+        if not run_dirs:
+            raise RunError("compare: no run directories given", 2)
+        cfgs = [read_config(run_dir) for run_dir in run_dirs]
+        for run_dir in run_dirs:
+            if not (run_dir / "metrics.jsonl").is_file():
+                raise RunError(f"{run_dir} has no metrics.jsonl", 2)
+        if compare:
+            runs = [(d, logging_lib.read_metrics(d / "metrics.jsonl")) for d in run_dirs]
+            plots.compare_runs(runs, args.out, [getattr(c, "sweep", ()) for c in cfgs])
+            written = args.out
+        else:
+            (run_dirs[0] / "plots").mkdir(exist_ok=True)
+            write_plots(run_dirs[0], envs.make(cfgs[0].env))
+            written = run_dirs[0] / "plots"
+    # ValueError: unreadable metrics rows, or runs per row that do not fit the config;
+    # OSError: a figure that cannot be written (e.g. --out in a missing directory).
+    except (RunError, ValueError, OSError) as err:
         print(f"error: {err}", file=sys.stderr)
         return 2
-    print(f"wrote {run_dir / 'plots'}")
+    print(f"wrote {written}")
     return 0

@@ -30,7 +30,29 @@ def validate(cfg: TrainConfig) -> str | None:
         problem = field_problem(path, value, ranges)
         if problem:
             return problem
+    if cfg.sweep:
+        return _sweep_problem(cfg)
     return cross_field_problem(cfg)
+
+
+def _sweep_problem(cfg: TrainConfig) -> str | None:
+    """The first problem of a sweep: its fields (`sweep.problem`), then every arm's
+    config by the rules of a single run, named by the arm's values."""
+    from d2c_jax.training import sweep  # here: sweep imports nothing of this module
+
+    problem = sweep.problem(cfg)
+    if problem:
+        return problem
+    fields = [field for field, _ in cfg.sweep]
+    for values, arm in zip(sweep.arm_values(cfg), sweep.arm_configs(cfg), strict=True):
+        problem = validate(arm)
+        if problem:
+            where = " ".join(
+                f"{sweep.flag_spelling(f)}={show_value(v)}"
+                for f, v in zip(fields, values, strict=True)
+            )
+            return f"{problem} (in the sweep arm {where})"
+    return None
 
 
 # --- valid ranges (checked by `validate`) -------------------------------------------
@@ -141,7 +163,26 @@ class NonEmptyTuple:
         return None if ok else self.describe()
 
 
-Range = Interval | OneOf | Text | OrNone | NonEmptyTuple
+@dataclasses.dataclass(frozen=True)
+class SweepPairs:
+    """(dotted field, values) pairs (`TrainConfig.sweep`); `sweep.problem` and each
+    arm's own validation check the fields and values."""
+
+    def describe(self) -> str:
+        return "FIELD=v1,v2,... pairs"
+
+    def problem(self, value) -> str | None:
+        ok = isinstance(value, tuple) and all(
+            isinstance(p, tuple)
+            and len(p) == 2
+            and isinstance(p[0], str)
+            and isinstance(p[1], tuple)
+            for p in value
+        )
+        return None if ok else self.describe()
+
+
+Range = Interval | OneOf | Text | OrNone | NonEmptyTuple | SweepPairs
 
 # Fields whose range is NOT the one their type implies (`_default_range`: an int is a
 # count >= 1, a float a finite scale, weight or learning rate >= 0). Keyed by dotted path;
@@ -179,6 +220,8 @@ _RANGE_EXCEPTIONS: dict[str, Range] = {
     "curriculum.post_success_switch_every": Interval(0, integer=True),
     "curriculum.archive_size": Interval(0, integer=True),
     "curriculum.archive_rarity": Interval(0),
+    # Hyperparameter arms: their fields and values are checked arm by arm (`validate`).
+    "sweep": SweepPairs(),
 }
 
 # Flags whose name is not the dotted field path with dashes.

@@ -1,4 +1,5 @@
-"""Host-side matplotlib drawings: maps with walls, goal points, points and trajectories.
+"""Host-side matplotlib drawings: maps with walls, goal points, points and trajectories,
+and training curves from metrics.jsonl rows (one run, seeds, sweep arms, several runs).
 
 The trainer uses these for curriculum pictures (paper Fig. 8); the demo for random
 rollouts. Nothing here runs inside jit.
@@ -6,6 +7,8 @@ rollouts. Nothing here runs inside jit.
 
 from __future__ import annotations
 
+import itertools
+import pathlib
 from collections.abc import Sequence
 
 import matplotlib
@@ -88,16 +91,25 @@ def _series(rows: list[dict], key: str):
     """(env_steps (n,), values (n, n_seeds)) of the rows that hold `key`."""
     rows = [r for r in rows if key in r]
     steps = np.array([r["env_steps"] for r in rows], np.float64)
+    if not rows:  # (0, 0): numpy cannot infer the seed axis of nothing
+        return steps, np.zeros((0, 0))
     values = np.array([np.atleast_1d(r[key]) for r in rows], np.float64)
     return steps, values.reshape(len(rows), -1)
 
 
-def _mean_std_line(ax, steps, values, label, color=None) -> None:
-    """Mean over seeds with a +-std band (no band for one seed)."""
-    mean, std = values.mean(axis=1), values.std(axis=1)
-    (line,) = ax.plot(steps, mean, label=label, color=color)
-    if values.shape[1] > 1:
+def _band_line(ax, steps, mean, std, label, band: bool, color=None, linestyle="-") -> None:
+    """A mean line (n,) with a shaded +-std band (n,) in its colour when `band`."""
+    (line,) = ax.plot(steps, mean, label=label, color=color, linestyle=linestyle)
+    if band:
         ax.fill_between(steps, mean - std, mean + std, color=line.get_color(), alpha=0.2)
+
+
+def _mean_std_line(ax, steps, values, label, color=None) -> None:
+    """Mean over seeds of values (n, n_seeds) with a +-std band (no band for one seed)."""
+    if not len(steps):  # a metric never logged (e.g. no evaluation yet): nothing to draw
+        return
+    mean, std = values.mean(axis=1), values.std(axis=1)
+    _band_line(ax, steps, mean, std, label, band=values.shape[1] > 1, color=color)
 
 
 def training_minutes(rows: list[dict]) -> tuple[np.ndarray, np.ndarray]:
@@ -167,4 +179,143 @@ def curriculum_snapshots(rows: list[dict], env, path, n_panels: int = 4) -> None
         draw_map(ax, env)
         draw_points(ax, goals[:, :2], color="tab:green", size=18)
         ax.set_title(f"{rows[i]['env_steps']:,} env steps")
+    save(fig, path)
+
+
+# --- sweeps and comparisons -------------------------------------------------------------
+
+
+def _format_value(value) -> str:
+    """A swept value for a label: floats as `:g` (0.0 -> "0", 0.005 -> "0.005")."""
+    return f"{value:g}" if isinstance(value, float) else str(value)
+
+
+def arm_labels(sweep) -> list[str]:
+    """One label per arm of a sweep, in run order.
+
+    Args:
+      sweep: (dotted field, values) pairs, as config.json's `sweep` (lists) or
+        TrainConfig.sweep (tuples); empty = no sweep.
+
+    Returns:
+      n_arms labels, e.g. "diversity_weight=0, tau=0.005": the arms are the Cartesian
+      product of the value lists with the last field varying fastest (as the runs are
+      laid out); ["all runs"] for an empty sweep (one arm holding every seed).
+    """
+    if not sweep:
+        return ["all runs"]
+    names = [field.rsplit(".", 1)[-1] for field, _ in sweep]
+    return [
+        ", ".join(f"{name}={_format_value(v)}" for name, v in zip(names, arm, strict=True))
+        for arm in itertools.product(*(values for _, values in sweep))
+    ]
+
+
+def _arm_stats(values, n_arms: int, n_seeds: int):
+    """(mean (n_arms, T), std (n_arms, T)) over seeds of values (T, n_arms * n_seeds).
+
+    Run r = arm * n_seeds + seed, so a row-major reshape puts arms before seeds.
+    """
+    per_arm = values.reshape(len(values), n_arms, n_seeds)
+    return per_arm.mean(axis=2).T, per_arm.std(axis=2).T
+
+
+def per_arm_success(rows: list[dict], n_arms: int, n_seeds: int):
+    """Eval success per sweep arm over the evaluation rows.
+
+    Args:
+      rows: metrics.jsonl rows; those with "eval/success" count (a number for one run,
+        else a list of n_arms * n_seeds, run r = arm * n_seeds + seed).
+
+    Returns:
+      (env_steps (T,), mean (n_arms, T), std (n_arms, T)): mean and population std over
+      each arm's seeds (std 0 for one seed).
+
+    Raises:
+      ValueError: the rows hold a different number of runs than n_arms * n_seeds.
+    """
+    steps, values = _series(rows, "eval/success")  # (T,), (T, runs)
+    if len(steps) and values.shape[1] != n_arms * n_seeds:
+        raise ValueError(
+            f"eval/success has {values.shape[1]} runs per row, expected "
+            f"{n_arms} arms x {n_seeds} seeds = {n_arms * n_seeds}"
+        )
+    return (steps, *_arm_stats(values, n_arms, n_seeds))
+
+
+def _success_axes(ax, title: str) -> None:
+    """Labels, limits, legend and grid of a success-over-env-steps panel."""
+    ax.set_xlabel("env steps")
+    ax.set_ylabel("eval success")
+    ax.set_ylim(-0.05, 1.05)
+    ax.set_title(title, fontsize=10)
+    ax.legend(fontsize=8)
+    ax.grid(alpha=0.3)
+
+
+def _seeds_text(n: int) -> str:
+    """A seed count in words: 1 seed, 3 seeds."""
+    return f"{n} seed" if n == 1 else f"{n} seeds"
+
+
+def sweep_success_curves(rows: list[dict], sweep, n_seeds: int, path) -> None:
+    """Eval success of each sweep arm over env steps, mean +- std over its seeds (one
+    curve per setting with a shaded std, as the D2C paper's ablation figure 10), with
+    the training minutes on a top axis.
+
+    Args:
+      rows: metrics.jsonl rows (eval/success of n_arms * n_seeds runs).
+      sweep: (dotted field, values) pairs (`arm_labels`); empty = one arm of n_seeds.
+      n_seeds: seeds per arm.
+      path: the .png to write.
+    """
+    labels = arm_labels(sweep)
+    steps, mean, std = per_arm_success(rows, len(labels), n_seeds)
+    fig, ax = plt.subplots(figsize=(7, 4.5))
+    for label, m, s in zip(labels, mean, std, strict=True):
+        _band_line(ax, steps, m, s, label, band=n_seeds > 1)
+    _minutes_axis(ax, rows)
+    arms = "1 arm" if len(labels) == 1 else f"{len(labels)} arms"
+    spread = ": mean ± std over seeds" if n_seeds > 1 else ""
+    _success_axes(ax, f"eval success, {arms} × {_seeds_text(n_seeds)}{spread}")
+    save(fig, path)
+
+
+def compare_runs(run_dirs_and_rows, path, sweeps=None) -> None:
+    """Eval success of several run directories in one figure, mean +- std over all runs
+    of each directory, or over the seeds of each arm when a directory is a sweep.
+
+    Args:
+      run_dirs_and_rows: (run directory, its metrics.jsonl rows) pairs; a directory's
+        name labels its curves ("NAME: ARM" for a sweep's arms).
+      path: the .png to write.
+      sweeps: one sweep ((field, values) pairs, `arm_labels`) per directory, () for one
+        without; None = no sweeps. The seeds per arm are the runs per row / the arms.
+
+    Raises:
+      ValueError: a directory without evaluation rows, or whose runs per row are not
+        a whole number per arm.
+    """
+    run_dirs_and_rows = list(run_dirs_and_rows)
+    sweeps = [()] * len(run_dirs_and_rows) if sweeps is None else list(sweeps)
+    fig, ax = plt.subplots(figsize=(7, 4.5))
+    # One line style per directory, so a directory's arms read as one group.
+    styles = itertools.cycle(["-", "--", ":", "-."])
+    for (run_dir, rows), sweep in zip(run_dirs_and_rows, sweeps, strict=True):
+        style = next(styles)
+        name = pathlib.Path(run_dir).resolve().name or str(run_dir)
+        steps, values = _series(rows, "eval/success")  # (T,), (T, runs)
+        labels = arm_labels(sweep)
+        if not len(steps):
+            raise ValueError(f"{run_dir}: no evaluation rows (eval/success) in its metrics")
+        if values.shape[1] % len(labels):
+            raise ValueError(
+                f"{run_dir}: {values.shape[1]} runs per row do not split into {len(labels)} arms"
+            )
+        n_seeds = values.shape[1] // len(labels)
+        mean, std = _arm_stats(values, len(labels), n_seeds)
+        for label, m, s in zip(labels, mean, std, strict=True):
+            text = f"{name} ({_seeds_text(n_seeds)})" if not sweep else f"{name}: {label}"
+            _band_line(ax, steps, m, s, text, band=n_seeds > 1, linestyle=style)
+    _success_axes(ax, "eval success, mean ± std over seeds")
     save(fig, path)
