@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 from d2c_jax import config
-from d2c_jax.training import cli, loop, placement, sweep
+from d2c_jax.training import cli, loop, placement, runs, sweep
 from d2c_jax.training import logging as logging_lib
 
 ROOT = pathlib.Path(__file__).resolve().parents[1]
@@ -170,8 +170,25 @@ def test_sharded_sweep_and_its_resume_equal_the_unsharded_run(unsharded, tmp_pat
             *TINY, *LAMBDA_SWEEP, "--out", str(part), "--total-steps", "400", extra_env=two_devices
         )
     )
+    # One device cannot take over the two devices' padded states: refused, not garbled.
+    cfg, _, _ = cli.parse_args([*TINY, *LAMBDA_SWEEP])
+    with pytest.raises(runs.RunError, match="resume with the processes and devices") as err:
+        loop.train(cfg, part, resume=True, quiet=True)
+    assert err.value.status == 2
     finish(run_cli(*TINY, *LAMBDA_SWEEP, "--out", str(part), "--resume", extra_env=two_devices))
     assert_rows_close(logging_lib.read_metrics(part / "metrics.jsonl"), unsharded)
+    assert_loads_the_real_runs(full, 3)
+
+
+def assert_loads_the_real_runs(run_dir, n_runs: int) -> None:
+    """`load_run` (render, evaluation) gets the real runs in run order, no padding."""
+    import jax
+
+    _, _, ts = runs.load_run(run_dir)
+    assert ts.iteration.shape == (n_runs,) and np.all(np.asarray(ts.iteration) == 2)
+    lambdas = np.asarray(ts.hparams.classifier.diversity_weight)
+    np.testing.assert_allclose(lambdas, [0.0, 1.0, 2.0])
+    assert jax.tree.leaves(ts.sac)[0].shape[0] == n_runs
 
 
 def free_port() -> int:
@@ -209,11 +226,13 @@ def test_two_processes_split_a_sweep_and_resume(unsharded, tmp_path):
 
     job("--total-steps", "400")
     assert sorted(p.name for p in (out / "checkpoints").iterdir()) == [
+        "layout.json",
         "process-0-of-2",
         "process-1-of-2",
     ]
     job("--resume")
     assert_rows_close(logging_lib.read_metrics(out / "metrics.jsonl"), unsharded)
+    assert_loads_the_real_runs(out, 3)
 
 
 # --- bad input --------------------------------------------------------------------------

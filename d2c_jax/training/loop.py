@@ -160,6 +160,10 @@ def train(cfg: config_lib.TrainConfig, out, resume: bool = False, quiet: bool = 
     if not quiet:
         print(describe(cfg, agent.schedule, layout), flush=True)
     mesh = placement.run_mesh(layout)
+    runs.record_layout(out, layout, write=False)  # every process refuses a mismatch
+    placement.sync_processes(layout, "checkpoint layout checked")
+    if lead:
+        runs.record_layout(out, layout, write=True)
     ckpt = runs.open_checkpointer(out, layout)
     try:
         start, ts = _initial_state(agent, layout, mesh, ckpt, out, resume)

@@ -119,6 +119,53 @@ def open_checkpointer(
     return checkpoint_lib.HostCheckpointer(checkpoint_dir(out, layout), max_to_keep=3)
 
 
+def layout_path(out: pathlib.Path) -> pathlib.Path:
+    """Where a run records how its checkpoints split the run axis."""
+    return out / "checkpoints" / "layout.json"
+
+
+def record_layout(out: pathlib.Path, layout: placement.RunLayout, write: bool) -> None:
+    """Checks `checkpoints/layout.json` against this job, or (with `write`: process 0)
+    writes it when there is none: the processes and the rows each holds (its runs
+    padded to its devices), which loading the checkpoints needs.
+
+    Raises:
+      RunError(2): resuming checkpoints written by another number of processes or rows
+        per process (other devices): their states do not fit this job's.
+    """
+    path = layout_path(out)
+    record = {"n_processes": layout.n_processes, "rows_per_process": layout.local_size}
+    if path.is_file():
+        saved = json.loads(path.read_text())
+        if saved != record:
+            raise RunError(
+                f"--resume: the checkpoints of {out} hold {saved['n_processes']} process(es) "
+                f"x {saved['rows_per_process']} runs (padded to their devices), this job "
+                f"{record['n_processes']} x {record['rows_per_process']}; resume with the "
+                "processes and devices per process that wrote them",
+                2,
+            )
+        return
+    if not write:
+        return
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_suffix(".json.tmp")
+    tmp.write_text(json.dumps(record))
+    tmp.replace(path)
+
+
+def saved_layout(out: pathlib.Path, n_runs: int) -> placement.RunLayout:
+    """The layout the checkpoints of `out` were written with, seen from process 0 (one
+    process holding every run when there is no record: runs before sweeps)."""
+    path = layout_path(out)
+    if not path.is_file():
+        return placement.RunLayout(n_runs, 1, 0, n_runs)
+    saved = json.loads(path.read_text())
+    # As many "devices" as rows: every process's rows are its share plus padding.
+    rows = saved["rows_per_process"]
+    return placement.RunLayout(n_runs, saved["n_processes"], 0, rows)
+
+
 def save_state(ckpt: checkpoint_lib.Checkpointer, iteration: int, ts) -> None:
     """Checkpoints a TrainState without its hyperparameters: they are the config's
     (config.json), so a resumed run takes them from there, and a state of an older
@@ -169,9 +216,11 @@ def read_config(run_dir) -> config_lib.TrainConfig:
 
 
 def load_run(run_dir):
-    """(cfg, env, ts) of a run directory: config.json and the newest checkpoint.
+    """(cfg, env, ts) of a run directory: config.json and the newest checkpoint of every
+    process that wrote one, on this process's first device.
 
-    ts is the TrainState with a leading seed axis (num_seeds,).
+    ts is the TrainState with a leading run axis (arms x seeds, run order; padding rows
+    dropped).
 
     Raises:
       RunError(2): no config.json, no checkpoint, or an unreadable one.
@@ -179,12 +228,19 @@ def load_run(run_dir):
     run_dir = pathlib.Path(run_dir)
     cfg = read_config(run_dir)
     env = envs.make(cfg.env)
-    ckpt = open_checkpointer(run_dir)
-    try:
-        _, ts = restore_or_fail(ckpt, agent_lib.Agent(cfg, env).init_seeds(), run_dir)
-    finally:
-        ckpt.close()
-    return cfg, env, ts
+    agent = agent_lib.Agent(cfg, env)
+    saved = saved_layout(run_dir, agent.num_runs)
+    parts = []
+    for p in range(saved.n_processes):
+        layout = dataclasses.replace(saved, process_index=p)
+        ckpt = open_checkpointer(run_dir, layout)
+        try:
+            like = agent.init_runs(layout.local_run_ids())
+            parts.append(restore_or_fail(ckpt, like, run_dir)[1])
+        finally:
+            ckpt.close()
+    rows = jax.numpy.asarray(saved.gathered_rows())
+    return cfg, env, jax.tree.map(lambda *xs: jax.numpy.concatenate(xs)[rows], *parts)
 
 
 def trained_policy(cfg, env, ts, seed_index: int = 0):
