@@ -178,6 +178,8 @@ def test_sharded_sweep_and_its_resume_equal_the_unsharded_run(unsharded, tmp_pat
     finish(run_cli(*TINY, *LAMBDA_SWEEP, "--out", str(part), "--resume", extra_env=two_devices))
     assert_rows_close(logging_lib.read_metrics(part / "metrics.jsonl"), unsharded)
     assert_loads_the_real_runs(full, 3)
+    # Run 3 is a padding row of the checkpoint, not a run: refused, not drawn.
+    assert runs.render_main([str(full), "--seed-index", "3"]) == 2
 
 
 def assert_loads_the_real_runs(run_dir, n_runs: int) -> None:

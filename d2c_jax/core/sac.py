@@ -25,12 +25,11 @@ from typing import NamedTuple
 
 import jax
 import jax.numpy as jnp
-import numpy as np
 import optax
 from flax import struct
 
 from d2c_jax.config import SACConfig
-from d2c_jax.core import networks, optim
+from d2c_jax.core import networks, optim, types
 from d2c_jax.core.types import Batch, Metrics
 
 
@@ -62,13 +61,7 @@ class SACHyperparams:
 
 def hyperparams(cfg: SACConfig) -> SACHyperparams:
     """The config's values; log alpha is taken on the host, in double precision."""
-    return SACHyperparams(
-        actor_lr=np.float32(cfg.actor_lr),
-        critic_lr=np.float32(cfg.critic_lr),
-        alpha_lr=np.float32(cfg.alpha_lr),
-        tau=np.float32(cfg.tau),
-        init_log_alpha=np.float32(math.log(cfg.init_alpha)),
-    )
+    return types.float32_scalars(SACHyperparams, cfg, init_log_alpha=math.log(cfg.init_alpha))
 
 
 class Optimizers(NamedTuple):

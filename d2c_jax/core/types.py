@@ -2,15 +2,26 @@
 
 from __future__ import annotations
 
+import dataclasses
 from typing import Callable, NamedTuple
 
 import jax
+import numpy as np
 
 # A flat dict of scalar metrics, keys like "sac/critic_loss" (ARCHITECTURE.md conventions).
 Metrics = dict[str, jax.Array]
 
 # reward_fn(next achieved goal (..., goal_dim), goal (..., goal_dim)) -> reward (...,).
 RewardFn = Callable[[jax.Array, jax.Array], jax.Array]
+
+
+def float32_scalars(cls, cfg, **values):
+    """A hyperparameter struct `cls` (traced values, issue 13) of float32 scalars: each
+    field is `values[name]` where given, else the config field of the same name."""
+    return cls(**{
+        f.name: np.float32(values[f.name] if f.name in values else getattr(cfg, f.name))
+        for f in dataclasses.fields(cls)
+    })  # fmt: skip
 
 
 class Batch(NamedTuple):

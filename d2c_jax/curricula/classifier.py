@@ -21,12 +21,11 @@ from typing import NamedTuple
 import flax.linen as nn
 import jax
 import jax.numpy as jnp
-import numpy as np
 import optax
 from flax import struct
 
 from d2c_jax.config import ClassifierConfig
-from d2c_jax.core import optim
+from d2c_jax.core import optim, types
 from d2c_jax.core.types import Metrics, RewardFn
 from envs import GoalEnv
 
@@ -86,13 +85,7 @@ class ClassifierHyperparams:
 
 def hyperparams(cfg: ClassifierConfig) -> ClassifierHyperparams:
     """The config's values as float32 scalars."""
-    return ClassifierHyperparams(
-        lr=np.float32(cfg.lr),
-        diversity_weight=np.float32(cfg.diversity_weight),
-        marginal_weight=np.float32(cfg.marginal_weight),
-        marginal_prior=np.float32(cfg.marginal_prior),
-        eps=np.float32(cfg.eps),
-    )
+    return types.float32_scalars(ClassifierHyperparams, cfg)
 
 
 class ClassifierBatch(NamedTuple):

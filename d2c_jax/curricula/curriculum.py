@@ -13,10 +13,10 @@ from typing import Callable
 
 import jax
 import jax.numpy as jnp
-import numpy as np
 from flax import struct
 
 from d2c_jax.config import CurriculumConfig
+from d2c_jax.core import types
 from d2c_jax.core.types import Metrics
 from d2c_jax.curricula import matching
 from d2c_jax.curricula.classifier import Classifier, log_p_pseudo, p_pseudo
@@ -43,14 +43,7 @@ class CurriculumHyperparams:
 
 def hyperparams(cfg: CurriculumConfig) -> CurriculumHyperparams:
     """The config's values as float32 scalars (host side)."""
-    return CurriculumHyperparams(
-        goal_noise=np.float32(cfg.goal_noise),
-        goal_value_weight=np.float32(cfg.goal_value_weight),
-        post_success_range=np.float32(cfg.post_success_range),
-        post_success_threshold=np.float32(cfg.post_success_threshold),
-        post_success_relax=np.float32(cfg.post_success_relax),
-        post_success_temperature=np.float32(cfg.post_success_temperature),
-    )
+    return types.float32_scalars(CurriculumHyperparams, cfg)
 
 
 def _noise_mask(env: GoalEnv) -> jax.Array:

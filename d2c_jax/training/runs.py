@@ -283,6 +283,11 @@ def render_policy(
     Returns the path written (default RUN_DIR/policy.gif).
     """
     cfg, env, ts = load_run(run_dir)
+    n_runs = ts.iteration.shape[0]
+    if not 0 <= seed_index < n_runs:  # jax indexing would clamp it to a wrong run
+        raise RunError(
+            f"--seed-index must be in [0, {n_runs - 1}] for {run_dir}, got {seed_index}", 2
+        )
     policy = trained_policy(cfg, env, ts, seed_index)
     # One episode per mode from the episode loop (the modes as an argument, not constants).
     episodes = jax.jit(lambda goals, k: rollout.trajectories(env, policy, goals, k))
@@ -299,7 +304,9 @@ def render_main(argv=None) -> int:
     parser = argparse.ArgumentParser(description="Render a trained run's policy per goal mode.")
     parser.add_argument("run_dir", help="a run directory written by train.py")
     parser.add_argument("--out", default=None, help="video path (.gif or .mp4)")
-    parser.add_argument("--seed-index", type=int, default=0, help="which seed of a sweep")
+    parser.add_argument(
+        "--seed-index", type=int, default=0, help="which run: arm x N + (seed - S) of a sweep"
+    )
     parser.add_argument("--size", type=int, default=240, help="tile width and height")
     parser.add_argument("--fps", type=float, default=20.0)
     parser.add_argument("--still", default=None, help="also a still strip (.png): 5 moments")
