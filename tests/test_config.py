@@ -375,10 +375,18 @@ def test_quick_preset_adds_exploration_everywhere_but_medium_maze():
             assert quick == base
         elif env in ("complex_maze", "spiral_maze"):
             u = dataclasses.replace(config.with_outpace_exploration(base), utd=1.0)
-            beta = 1.0 if env == "spiral_maze" else 0.0
-            assert quick == dataclasses.replace(
-                u, curriculum=dataclasses.replace(u.curriculum, goal_value_weight=beta)
-            )
+            if env == "spiral_maze":  # run F: U with the goal-value tie-break
+                want = dataclasses.replace(
+                    u, curriculum=dataclasses.replace(u.curriculum, goal_value_weight=1.0)
+                )
+            else:  # run V: U with SPEC §3's classifier size
+                want = dataclasses.replace(
+                    u,
+                    classifier=dataclasses.replace(
+                        u.classifier, hidden_sizes=(256, 256, 256), batch_size=512
+                    ),
+                )
+            assert quick == want
         else:
             want = dataclasses.replace(config.with_outpace_exploration(base), eval_every=30_000)
             assert quick == want

@@ -126,6 +126,7 @@ def test_unreadable_checkpoint_exits_2(tiny_run, tmp_path):
     result = run_cli("--env", "medium_maze", "--preset", "tiny", "--out", str(path), "--resume")
     assert result.returncode == 2, result.stderr
     assert result.stderr.splitlines()[0].startswith("error: cannot read checkpoint")
+    assert "Traceback" not in result.stderr
 
 
 def test_plots_command_redraws_a_run_and_refuses_a_non_run(tiny_run, tmp_path):

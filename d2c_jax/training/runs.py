@@ -136,7 +136,7 @@ def record_layout(out: pathlib.Path, layout: placement.RunLayout, write: bool) -
     path = layout_path(out)
     record = {"n_processes": layout.n_processes, "rows_per_process": layout.local_size}
     if path.is_file():
-        saved = json.loads(path.read_text())
+        saved = _read_layout(path)
         if saved != record:
             raise RunError(
                 f"--resume: the checkpoints of {out} hold {saved['n_processes']} process(es) "
@@ -154,13 +154,25 @@ def record_layout(out: pathlib.Path, layout: placement.RunLayout, write: bool) -
     tmp.replace(path)
 
 
+def _read_layout(path: pathlib.Path) -> dict:
+    """The record of `record_layout`; RunError(2) when it is unreadable."""
+    try:
+        saved = json.loads(path.read_text())
+        return {
+            "n_processes": int(saved["n_processes"]),
+            "rows_per_process": int(saved["rows_per_process"]),
+        }
+    except (OSError, ValueError, KeyError, TypeError):
+        raise RunError(f"cannot read checkpoint layout {path}: not a layout record", 2) from None
+
+
 def saved_layout(out: pathlib.Path, n_runs: int) -> placement.RunLayout:
     """The layout the checkpoints of `out` were written with, seen from process 0 (one
     process holding every run when there is no record: runs before sweeps)."""
     path = layout_path(out)
     if not path.is_file():
         return placement.RunLayout(n_runs, 1, 0, n_runs)
-    saved = json.loads(path.read_text())
+    saved = _read_layout(path)
     # As many "devices" as rows: every process's rows are its share plus padding.
     rows = saved["rows_per_process"]
     return placement.RunLayout(n_runs, saved["n_processes"], 0, rows)
