@@ -261,3 +261,4 @@ def test_bad_sweeps_exit_2_with_one_line(args, first_line, tmp_path, capsys):
     err = capsys.readouterr().err
     assert err.splitlines()[0].startswith(first_line), err
     assert len(err.splitlines()) == 1
+    assert not (tmp_path / "r").exists()  # refused before the run directory is made

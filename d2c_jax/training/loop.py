@@ -150,13 +150,13 @@ def train(cfg: config_lib.TrainConfig, out, resume: bool = False, quiet: bool = 
     layout = placement.make_layout(sweep.n_runs(cfg))
     lead = layout.process_index == 0
     quiet = quiet or not lead
+    agent = agent_lib.Agent(cfg, env)
+    problem = memory_problem(agent, layout)  # before the run directory is made
+    if problem:
+        raise RunError(problem, 2)
     if lead:
         runs.prepare_run_dir(out, cfg, resume)  # bad input fails here, before any compile
     placement.sync_processes(layout, "run directory ready")
-    agent = agent_lib.Agent(cfg, env)
-    problem = memory_problem(agent, layout)
-    if problem:
-        raise RunError(problem, 2)
     if not quiet:
         print(describe(cfg, agent.schedule, layout), flush=True)
     mesh = placement.run_mesh(layout)
