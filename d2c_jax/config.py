@@ -89,6 +89,9 @@ class SACConfig:
     """Target policy entropy; None means -action_dim."""
     learn_alpha: bool = True
     """Learn log alpha (False keeps alpha = init_alpha; probe tests use this)."""
+    clip_target: bool = False
+    """Clip the soft TD target to the return's range [0, 1/(1 - gamma)] of rewards in
+    [0, 1], as HER implementations clip it (off: the paper's SAC)."""
     log_std_min: float = -10.0
     """Lower end of the smooth log-std squashing."""
     log_std_max: float = 2.0

@@ -5,6 +5,7 @@ entropy term vanishes from the expected values) are test-only; the losses are th
 library's. The three probes share one compiled program (their parameters are traced).
 """
 
+import dataclasses
 from typing import NamedTuple
 
 import chex
@@ -336,3 +337,27 @@ def test_policy_and_state_value(small):
     det = networks.select_action(nets, state.actor_params, feats, None, deterministic=True)
     q = nets.critic.apply(state.critic_params, feats, det)
     np.testing.assert_allclose(v[0, 0], q.min(), rtol=1e-5)
+
+
+def test_clipped_targets_stay_in_the_return_range(small):
+    """clip_to_return_range by hand, and `clip_target` in the update: a target critic
+    whose outputs are far beyond 1 / (1 - gamma) gives targets in [0, 1 / (1 - gamma)]
+    only with the clip on."""
+    np.testing.assert_allclose(
+        sac.clip_to_return_range(jnp.array([-5.0, 50.0, 500.0]), 0.99), [0.0, 50.0, 100.0]
+    )
+    # Every bias of the target critic + 1e3: its Q values are thousands (of either sign).
+    inflated = small.state.replace(
+        target_critic_params=jax.tree.map(lambda x: x + 1e3, small.state.target_critic_params)
+    )
+    batches = stack(*small.batches[:2])
+    bound = 1.0 / (1.0 - CFG.gamma)
+    for clip in (False, True):
+        cfg = dataclasses.replace(CFG, clip_target=clip)
+        _, metrics = jax.jit(
+            lambda s, b, k, cfg=cfg: sac.update_sac_block(
+                cfg, small.nets, small.opt, small.hp, s, b, small.env, k
+            )
+        )(inflated, batches, jax.random.key(3))
+        target = float(metrics["sac/target_mean"])
+        assert (0.0 <= target <= bound * (1 + 1e-6)) if clip else abs(target) > bound, target

@@ -139,6 +139,14 @@ def soft_td_target(
     return jax.lax.stop_gradient(reward + gamma * mask * v_next), next_log_prob
 
 
+def clip_to_return_range(y: jax.Array, gamma: float) -> jax.Array:
+    """y clipped to [0, 1 / (1 - gamma)], the discounted return's range for rewards in
+    [0, 1] (p_pseudo and the sparse ablation): a critic that overshoots it (measured on
+    Ant at one update per env step: Q 362 against the bound 100) cannot feed that back
+    into its own targets."""
+    return jnp.clip(y, 0.0, 1.0 / (1.0 - gamma))
+
+
 def critic_loss(
     critic_params, nets: networks.SACNetworks, feats: jax.Array, action: jax.Array, y: jax.Array
 ) -> tuple[jax.Array, jax.Array]:
@@ -188,6 +196,8 @@ def _critic_step(cfg: SACConfig, nets, opt, hp, state: SACState, feats, next_fea
         nets, state.actor_params, state.target_critic_params, alpha, next_feats,
         batch.reward, batch.mask, cfg.gamma, key,
     )  # fmt: skip
+    if cfg.clip_target:
+        y = clip_to_return_range(y, cfg.gamma)
     grad_fn = jax.value_and_grad(critic_loss, has_aux=True)
     (loss, q), grads = grad_fn(state.critic_params, nets, feats, batch.action, y)
     params, opt_state = optim.adam_step(
