@@ -196,10 +196,10 @@ def initialize_processes(
 
     With a coordinator address, the process count and this process's id come from the
     arguments; with none, `jax.distributed.initialize` reads them from the cluster
-    scheduler (SLURM, Open MPI, ...). On CPU the cross-process collectives use gloo.
+    scheduler (SLURM, Open MPI, ...). Cross-process collectives between CPU devices use
+    gloo (the setting concerns only the CPU backend; accelerators keep their own).
     """
-    if jax.config.jax_platforms in (None, "", "cpu") or "cpu" in str(jax.config.jax_platforms):
-        jax.config.update("jax_cpu_collectives_implementation", "gloo")
+    jax.config.update("jax_cpu_collectives_implementation", "gloo")
     jax.distributed.initialize(
         coordinator_address=coordinator, num_processes=num_processes, process_id=process_id
     )
