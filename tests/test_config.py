@@ -352,8 +352,9 @@ def test_no_preset_on_cpu_means_quick_and_says_so_first():
 
 
 def test_quick_preset_adds_exploration_everywhere_but_medium_maze():
-    """complex quick = variant U of RESULTS.md (the exploration options and utd 1), spiral
-    quick = variant F (U and the goal-value tie-break, beta = 1);
+    """complex quick = variant V of RESULTS.md (U: the exploration options and utd 1; and
+    SPEC §3's 3x256 classifier), spiral quick = variant F (U and the goal-value
+    tie-break, beta = 1);
     Ant and Sawyer quick = the options at utd 0.25 with an evaluation every 30k env steps;
     medium_maze's quick preset keeps SPEC §3-§6 as written."""
     for env in envs.ENV_NAMES:
