@@ -204,7 +204,7 @@ def mean_pairwise_mi(probs: jax.Array) -> jax.Array:
     return jnp.mean(jnp.stack([mutual_information(probs[:, i], probs[:, j]) for i, j in pairs]))
 
 
-def marginal_kl(probs: jax.Array, prior: float, group: int = 1) -> jax.Array:
+def marginal_kl(probs: jax.Array, prior: jax.Array | float, group: int = 1) -> jax.Array:
     """DivDis's marginal regulariser: mean_i KL(Bern(mean_b p_i) || Bern(prior)).
 
     Why: MI alone is minimised by heads that are constant on the unlabelled points. A head
@@ -217,7 +217,7 @@ def marginal_kl(probs: jax.Array, prior: float, group: int = 1) -> jax.Array:
 
     Args:
       probs: (B, n_heads) head probabilities on the unlabelled points.
-      prior: the Bernoulli prior in (0, 1).
+      prior: the Bernoulli prior in (0, 1) (traced: `ClassifierHyperparams`).
       group: consecutive rows sharing one conditioning goal; the batch mean is taken per
         group (per goal) and the KLs averaged. 1 pools all rows.
     Returns:

@@ -114,32 +114,30 @@ def gather_runs(tree, layout: RunLayout):
 
     With P > 1 this is a collective: every process must call it at the same point.
     """
-    tree = jax.device_get(tree)
-    if layout.n_processes > 1:
-        from jax.experimental import multihost_utils
-
-        tree = multihost_utils.process_allgather(tree, tiled=True)
+    tree = _every_process(layout, jax.device_get(tree))
     rows = layout.gathered_rows()
     return jax.tree.map(lambda x: np.asarray(x)[rows], tree)
+
+
+def _every_process(layout: RunLayout, tree):
+    """Every process's leaves (leading axis) concatenated process after process; as is
+    with one process. With several it is a collective (`process_allgather`)."""
+    if layout.n_processes == 1:
+        return tree
+    from jax.experimental import multihost_utils
+
+    return multihost_utils.process_allgather(tree, tiled=True)
 
 
 def any_process(layout: RunLayout, flag: bool) -> bool:
     """Whether `flag` is set in any process (a collective with several processes), so
     that all of them stop at the same iteration."""
-    if layout.n_processes == 1:
-        return flag
-    from jax.experimental import multihost_utils
-
-    return bool(np.asarray(multihost_utils.process_allgather(np.asarray([flag]))).any())
+    return bool(np.asarray(_every_process(layout, np.asarray([flag]))).any())
 
 
 def min_over_processes(layout: RunLayout, value: int) -> int:
     """The smallest of every process's `value` (a collective with several processes)."""
-    if layout.n_processes == 1:
-        return value
-    from jax.experimental import multihost_utils
-
-    return int(np.asarray(multihost_utils.process_allgather(np.asarray([value]))).min())
+    return int(np.asarray(_every_process(layout, np.asarray([value]))).min())
 
 
 def sync_processes(layout: RunLayout, name: str) -> None:
