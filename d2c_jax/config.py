@@ -201,7 +201,27 @@ class CurriculumConfig:
     """Iteration cap of the auction matcher (also `matching.auction`'s default)."""
 
 
+@dataclasses.dataclass(frozen=True)
+class HGGConfig:
+    """HGG's matching cost (Ren et al. 2019; docs/BASELINES.md), read with `--algo hgg`."""
+
+    init_distance_weight: float = 3.0
+    """c: weight of the distance between a trajectory's first achieved goal and the start's
+    (HGG's `hgg_c`, default 3)."""
+    lipschitz: float = 5.0
+    """L: the value's Lipschitz constant, which scales the value term by D (1 - gamma) / L
+    (HGG's `hgg_L`, default 5; OUTPACE's copy used 50)."""
+
+
 # --- the whole run ---------------------------------------------------------------
+
+# The curricula `--algo` selects (d2c_jax.curricula.interface): D2C, and the paper's
+# baselines built on the same SAC, HER, trajectory pool and auction.
+ALGO_NAMES = ("d2c", "her", "hgg")
+# The reward each algorithm trains with; None: `TrainConfig.reward` decides (D2C's
+# intrinsic reward or its sparse ablation). Paper appendix A.1: every baseline but
+# OUTPACE is trained with the sparse reward.
+ALGO_REWARDS: dict[str, str | None] = {"d2c": None, "her": "sparse", "hgg": "sparse"}
 
 
 @dataclasses.dataclass(frozen=True)
@@ -232,6 +252,8 @@ class TrainConfig:
     checkpoint_every: int = 50_000
     """Env steps between checkpoints: every ceil(checkpoint_every / E) iterations (and at
     the end, and on a signal). Default: 25 paper iterations of medium_maze (20 x H 100)."""
+    algo: Literal["d2c", "her", "hgg"] = "d2c"
+    """The curriculum and its reward: D2C, or a baseline (HER alone, HGG); `with_algo`."""
     reward: Literal["intrinsic", "sparse"] = "intrinsic"
     """D2C's intrinsic reward p_pseudo(phi(s'); g), or the sparse ablation."""
     sac: SACConfig = dataclasses.field(default_factory=SACConfig)
@@ -244,6 +266,8 @@ class TrainConfig:
     """Classifier ensemble."""
     curriculum: CurriculumConfig = dataclasses.field(default_factory=CurriculumConfig)
     """Curriculum."""
+    hgg: HGGConfig = dataclasses.field(default_factory=HGGConfig)
+    """HGG's matching cost (`--algo hgg`)."""
     sweep: tuple[tuple[str, tuple], ...] = ()
     """Hyperparameter arms (issue 13): (dotted field, values) pairs whose Cartesian
     product, times the num_seeds seeds, runs as one program (`d2c_jax.training.sweep`);
@@ -402,6 +426,29 @@ def preset(env: str, name: str) -> TrainConfig:
     if name not in builders:
         raise ValueError(f"unknown preset {name!r}; valid presets: {', '.join(PRESET_NAMES)}")
     return builders[name](env)
+
+
+def with_algo(cfg: TrainConfig, algo: str) -> TrainConfig:
+    """`cfg` trained by `algo` (`ALGO_NAMES`): a baseline gets its fixed reward
+    (`ALGO_REWARDS`) and none of D2C's own options: no random-walk buffer (baselines
+    never switch goals after success, so it would stay empty) and no beta value term
+    in a matching they do not use. The rest of the preset (SAC, HER, the trajectory
+    pool and its archive) is shared, so every method runs on the same parts.
+
+    Raises:
+      ValueError: for an unknown algo.
+    """
+    if algo not in ALGO_NAMES:
+        raise ValueError(f"unknown algo {algo!r}; valid algos: {', '.join(ALGO_NAMES)}")
+    if algo == "d2c":
+        return dataclasses.replace(cfg, algo=algo)
+    return dataclasses.replace(
+        cfg,
+        algo=algo,
+        reward=ALGO_REWARDS[algo],
+        replay=dataclasses.replace(cfg.replay, walk_fraction=0.0),
+        curriculum=dataclasses.replace(cfg.curriculum, goal_value_weight=0.0),
+    )
 
 
 def from_dict(cls, values: dict):

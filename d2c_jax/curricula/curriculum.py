@@ -233,7 +233,7 @@ METRIC_KEYS = (
 
 # Cost of a pool trajectory that may not be matched (barely moved): above any real cost,
 # so the auction takes it only when fewer usable trajectories than slots exist.
-_UNUSABLE_COST = 1e4
+UNUSABLE_COST = 1e4
 
 
 def propose(
@@ -305,7 +305,7 @@ def propose(
             goal_value_scale=hp.goal_value_weight * (1.0 - gamma),
         )  # fmt: skip
         if cfg.pool_min_move > 0:
-            cost = jnp.where(moved(pool_ag, cfg.pool_min_move)[None], cost, _UNUSABLE_COST)
+            cost = jnp.where(moved(pool_ag, cfg.pool_min_move)[None], cost, UNUSABLE_COST)
         solved = matching.auction_solve(cost, max_iters=cfg.auction_max_iters)
         cols, converged = solved.assignment, solved.converged  # (K,) distinct columns
         rows = jnp.arange(cfg.n_slots)
@@ -315,17 +315,28 @@ def propose(
         warm = warmup_goals(env, start_goal, cfg.n_slots, key_warm)
         goals = jnp.where(full, env.clip_goal(matched), warm)
         matched_cost = jnp.where(full, cost[rows, cols].mean(), 0.0)
-    metrics = {
+    return goals, proposal_metrics(goals, slots, matched_cost, full, converged)
+
+
+def proposal_metrics(goals: jax.Array, slots: jax.Array, matched_cost, full, converged) -> Metrics:
+    """The `METRIC_KEYS` metrics of goals (K, d) proposed for slots (K, d), each () float32.
+
+    Args:
+      goals, slots: (K, d) the proposed goals and the slots (desired examples) they serve.
+      matched_cost: () mean cost of the matched edges (0 without a matching).
+      full: () bool the pool was full (the goals are matched, not warm-up goals).
+      converged: () bool the auction converged.
+    """
+    return {
         # Paper §5.1, Figs. 4 and 9: how far the curriculum still is from the desired outcomes.
         "curriculum/distance": matched_distance(goals, slots),
         "curriculum/slot_distance": goal_distance(goals, slots).mean(),
-        "curriculum/matched_cost": matched_cost,
-        "curriculum/pool_full": full.astype(jnp.float32),
-        # 0 when the auction hit auction_max_iters (its assignment was then completed
+        "curriculum/matched_cost": jnp.asarray(matched_cost, jnp.float32),
+        "curriculum/pool_full": jnp.asarray(full, jnp.float32),
+        # 0 when the auction hit its iteration cap (its assignment was then completed
         # greedily): a matching that is not optimal must show.
-        "curriculum/auction_converged": converged.astype(jnp.float32),
+        "curriculum/auction_converged": jnp.asarray(converged, jnp.float32),
     }
-    return goals, metrics
 
 
 def candidate_scores(

@@ -27,7 +27,7 @@ import envs
 from d2c_jax import config as config_lib
 from d2c_jax.core import her, networks, replay, rollout, sac
 from d2c_jax.core.types import RewardFn
-from d2c_jax.curricula import classifier, curriculum
+from d2c_jax.curricula import classifier, curriculum, interface
 from d2c_jax.training import placement, sweep
 
 
@@ -45,13 +45,16 @@ class Schedule(NamedTuple):
 
 
 def make_schedule(cfg: config_lib.TrainConfig, horizon: int) -> Schedule:
-    """The static schedule of SPEC §2 for `cfg` and an env of this horizon."""
+    """The static schedule of SPEC §2 for `cfg` and an env of this horizon. A curriculum
+    that does not use the classifier (the sparse-reward baselines) trains none."""
     e = cfg.num_envs * horizon
     block = sac.block_size(cfg.sac)  # updates come in whole blocks (no cond, see sac_block)
+    classifier_updates = round(cfg.classifier.iters * e / cfg.classifier.update_every)
+    trains_classifier = interface.curriculum_class(cfg).uses_classifier
     return Schedule(
         env_steps=e,
         sac_updates=block * max(1, round(e * cfg.utd / block)),
-        classifier_updates=round(cfg.classifier.iters * e / cfg.classifier.update_every),
+        classifier_updates=classifier_updates if trains_classifier else 0,
         warmup_iterations=math.ceil(cfg.seed_steps / e),
         eval_every=max(1, math.ceil(cfg.eval_every / e)),
         total_iterations=math.ceil(cfg.total_steps / e),
@@ -99,6 +102,8 @@ class TrainState:
     replay: replay.ReplayState
     hparams: Hyperparams  # () leaves: what a sweep vmaps over (set by the config, never
     # learned: checkpoints leave them out and a resumed run takes them from config.json)
+    curriculum_state: object  # the curriculum's own state (`interface.Curriculum.init`;
+    # None for D2C, HER and HGG, whose pool is the replay buffer)
     desired: jax.Array  # (n_modes, examples_per_mode, goal_dim) desired examples, SPEC §1
     curriculum_goals: jax.Array  # (n_slots, goal_dim) the goals of the last matching
     matching_metrics: dict  # () float32 each: "curriculum/*" metrics of the last matching
@@ -153,8 +158,9 @@ class Agent:
         self.constants = host_constants(cfg, env)
         # Swept hyperparameters that switch computations on: the program holds them
         # when any run uses them, and the traced value makes them a no-op elsewhere.
-        self.uses_goal_value = any(c.curriculum.goal_value_weight != 0 for c in self.run_configs)
-        self.rewards = tuple(sorted({c.reward for c in self.run_configs}))
+        uses_goal_value = any(c.curriculum.goal_value_weight != 0 for c in self.run_configs)
+        self.rewards = tuple(sorted({interface.train_reward(c) for c in self.run_configs}))
+        self.curriculum = interface.make_curriculum(cfg, env, self.classifier_net, uses_goal_value)
 
     # --- state ----------------------------------------------------------------------
 
@@ -173,6 +179,8 @@ class Agent:
                 cfg.replay, env.obs_dim, env.action_dim, env.goal_dim, env.horizon
             ),
             hparams=jax.tree.map(jnp.asarray, hp),
+            # fold_in, not a split: D2C's key stream is the one it had before the interface
+            curriculum_state=self.curriculum.init(jax.random.fold_in(key, 1)),
             desired=curriculum.desired_examples(env, cfg.curriculum.examples_per_mode, k_des),
             curriculum_goals=jnp.zeros((cfg.curriculum.n_slots, env.goal_dim), jnp.float32),
             matching_metrics={k: jnp.zeros((), jnp.float32) for k in curriculum.METRIC_KEYS},
@@ -210,7 +218,9 @@ class Agent:
         goals, cur_metrics = self.curriculum_goals(ts, k_cur)
         warmup = ts.iteration < self.schedule.warmup_iterations
         episodes = self.collect_episodes(ts, self.env_goals(ts, goals), warmup, k_col)
+        inputs = self.curriculum_inputs(ts)
         ts = ts.replace(
+            curriculum_state=self.curriculum.observe(ts.curriculum_state, episodes, inputs),
             replay=replay.insert_episodes(ts.replay, episodes),
             curriculum_goals=goals,
             matching_metrics=cur_metrics,
@@ -255,28 +265,31 @@ class Agent:
         return jax.lax.cond(due, lambda: self.match(ts, key), held)
 
     def match(self, ts: TrainState, key) -> tuple[jax.Array, dict]:
-        """A new curriculum (Eq. 6-7) from the matching pool."""
-        cfg = self.cfg
-        slots, pool_valid = self._matching_pool(ts, jax.random.fold_in(key, 1))
-        goal_value_fn = self._goal_value_fn(ts)
-        pool_ag = ts.replay.achieved_goal[slots]  # (P + A, H + 1, d)
-        pool_obs = None if goal_value_fn is None else ts.replay.obs[slots]
-        goals, metrics = curriculum.propose(
-            cfg.curriculum,
-            self.env,
-            self.classifier_net,
-            ts.classifier.params,
-            pool_ag,
-            pool_valid,
-            jnp.asarray(self.constants.start_goal),
-            key,
-            self._start_value_fn(ts),
-            gamma=cfg.sac.gamma,
-            pool_obs=pool_obs,
-            goal_value_fn=goal_value_fn,
+        """A new curriculum: `propose` of the run's curriculum (`interface.Curriculum`)."""
+        inputs = self.curriculum_inputs(ts, jax.random.fold_in(key, 1))
+        goals, metrics = self.curriculum.propose(ts.curriculum_state, inputs, key)
+        return goals, jax.tree.map(lambda x: x.astype(jnp.float32), metrics)
+
+    def curriculum_inputs(self, ts: TrainState, key=None) -> interface.CurriculumInputs:
+        """What the curriculum reads (`interface.CurriculumInputs`): the matching pool,
+        drawn with `key` (None: the P most recent episodes only), the classifier and,
+        where it asks for them, the pool's observations and the critic's V(s, g)."""
+        cur, pool_size = self.curriculum, self.cfg.curriculum.pool_size
+        if key is None:
+            slots, pool_valid = replay.recent_episode_slots(ts.replay, pool_size)
+        else:
+            slots, pool_valid = self._matching_pool(ts, key)
+        start_obs = self.constants.start_obs
+        return interface.CurriculumInputs(
+            pool_ag=ts.replay.achieved_goal[slots],  # (P + A, H + 1, d)
+            pool_obs=ts.replay.obs[slots] if cur.needs_pool_obs else None,
+            pool_valid=pool_valid,
+            start_goal=jnp.asarray(self.constants.start_goal),
+            start_obs=None if start_obs is None else jnp.asarray(start_obs),
+            classifier_params=ts.classifier.params,
+            value_fn=self._value_fn(ts) if cur.needs_value else None,
             hp=ts.hparams.curriculum,
         )
-        return goals, jax.tree.map(lambda x: x.astype(jnp.float32), metrics)
 
     def _matching_pool(self, ts: TrainState, key) -> tuple[jax.Array, jax.Array]:
         """The curriculum's pool: the P most recent episodes, then `archive_size` episodes
@@ -314,24 +327,9 @@ class Agent:
         outcomes = ts.replay.achieved_goal[:, -1]  # (n_slots, d)
         return curriculum.rarity_log_weights(self.env, outcomes, visited, rarity)
 
-    def _start_value_fn(self, ts: TrainState):
-        """V(s0, g) = min_i Q_i(s0, pi(s0, g), g) for the "+Value" ablation (appendix C.2)."""
-        if self.cfg.curriculum.variant != "value":
-            return None
-        s0 = jnp.asarray(self.constants.start_obs)
-        return lambda goals: sac.state_value(self.sac_nets, ts.sac, self.env, s0, goals)
-
-    def _goal_value_fn(self, ts: TrainState):
-        """V(s, g) = min_i Q_i(s, pi(s, g), g) over pool observations (P, T', o) and one
-        goal (d,), for `curriculum.goal_value_weight`; None when that is 0 in every run."""
-        if not self.uses_goal_value:
-            return None
-
-        def goal_value_fn(obs, goal):
-            goals = jnp.broadcast_to(goal, obs.shape[:-1] + goal.shape)
-            return sac.state_value(self.sac_nets, ts.sac, self.env, obs, goals)
-
-        return goal_value_fn
+    def _value_fn(self, ts: TrainState) -> interface.StateGoalValueFn:
+        """The critic's V(s, g) = min_i Q_i(s, pi(s, g), g) (`sac.state_value`)."""
+        return lambda obs, goals: sac.state_value(self.sac_nets, ts.sac, self.env, obs, goals)
 
     def env_goals(self, ts: TrainState, goals: jax.Array) -> jax.Array:
         """(num_envs, d) goals: env i of the r-th iteration since the matching takes slot
@@ -355,13 +353,8 @@ class Agent:
             k_actor, k_uniform = jax.random.split(key)
             return jnp.where(warmup, uniform(obs, goal, k_uniform), actor(obs, goal, k_actor))
 
-        def next_goal(ag, k):
-            return curriculum.post_success_goal(
-                cfg.curriculum, env, self.classifier_net, ts.classifier.params, ag, k,
-                ts.hparams.curriculum,
-            )  # fmt: skip
-
-        switch_every = cfg.curriculum.post_success_switch_every
+        next_goal = self.curriculum.next_goal(ts.classifier.params, ts.hparams.curriculum)
+        switch_every = 0 if next_goal is None else cfg.curriculum.post_success_switch_every
         return rollout.collect(env, policy, next_goal, goals, cfg.num_envs, key, switch_every)
 
     # --- updates --------------------------------------------------------------------

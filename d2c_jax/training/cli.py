@@ -1,6 +1,6 @@
 """The `python train.py` command line (ARCHITECTURE.md, "Command line").
 
-    python train.py --env medium_maze [--preset quick] [--seed S] [--seeds N]
+    python train.py --env medium_maze [--algo d2c|her|hgg] [--preset quick] [--seed S] [--seeds N]
         [--total-steps N] [--out DIR] [--resume] [--sac.batch-size 256 ...]
 
 Any config field can be overridden as `--<section>.<field-with-dashes> VALUE`
@@ -98,6 +98,11 @@ def _parser() -> argparse.ArgumentParser:
         default=None,
         help="paper | quick | tiny (default: paper with an accelerator, quick without)",
     )
+    parser.add_argument(
+        "--algo",
+        default=None,
+        help="d2c | her | hgg: D2C or a baseline on the same SAC, HER and pool (default d2c)",
+    )
     parser.add_argument("--seed", type=int, default=None, help="first seed S")
     parser.add_argument("--seeds", type=int, default=None, help="N seeds S..S+N-1, vmapped")
     parser.add_argument("--total-steps", type=int, default=None, help="env steps to train")
@@ -193,6 +198,12 @@ def parse_sweep(cfg, spec: str):
     return dataclasses.replace(cfg, sweep=cfg.sweep + ((field, values),))
 
 
+def default_out(cfg: config_lib.TrainConfig) -> str:
+    """runs/<env>-<preset>-<seed>, with the algo after the env when it is not D2C."""
+    algo = "" if cfg.algo == "d2c" else f"-{cfg.algo}"
+    return f"runs/{cfg.env}{algo}-{cfg.preset}-{cfg.seed}"
+
+
 NO_ACCELERATOR_NOTICE = (
     "no GPU found: using the quick preset; --preset paper for the paper's settings"
 )
@@ -233,6 +244,9 @@ def parse_args(
             notify(notice)
     try:
         cfg = config_lib.preset(known.env, preset_name)
+        # The algo's fixed settings come before the overrides, so a flag that conflicts
+        # with them is seen (and refused by `validation`) rather than overwritten.
+        cfg = config_lib.with_algo(cfg, known.algo or "d2c")
     except ValueError as err:
         raise UsageError(str(err)) from None
     for flag, field in (("seed", "seed"), ("seeds", "num_seeds"), ("total_steps", "total_steps")):
@@ -260,7 +274,7 @@ def parse_args(
         raise UsageError(problem)
     if known.out is not None and not known.out.strip():
         raise UsageError(f"--out must be a directory path, got {known.out!r}")
-    out = pathlib.Path(known.out or f"runs/{cfg.env}-{cfg.preset}-{cfg.seed}")
+    out = pathlib.Path(known.out or default_out(cfg))
     return cfg, out, known.resume
 
 

@@ -332,7 +332,7 @@ def describe(cfg: config_lib.TrainConfig, sched: agent_lib.Schedule, layout=None
             f"{layout.local_size} runs per process"
         )
     return (
-        f"d2c_jax: env {cfg.env}, preset {cfg.preset}, {runs_line}, {where}\n"
+        f"d2c_jax: {cfg.algo}, env {cfg.env}, preset {cfg.preset}, {runs_line}, {where}\n"
         f"  {sched.total_iterations} iterations x {sched.env_steps} env steps, "
         f"{sched.sac_updates} SAC + {sched.classifier_updates} classifier updates each, "
         f"warm-up {sched.warmup_iterations}, eval every {sched.eval_every}"

@@ -13,7 +13,7 @@ import dataclasses
 import typing
 from typing import Literal
 
-from d2c_jax.config import TrainConfig
+from d2c_jax.config import ALGO_REWARDS, TrainConfig
 
 
 def validate(cfg: TrainConfig) -> str | None:
@@ -220,6 +220,8 @@ _RANGE_EXCEPTIONS: dict[str, Range] = {
     "curriculum.post_success_switch_every": Interval(0, integer=True),
     "curriculum.archive_size": Interval(0, integer=True),
     "curriculum.archive_rarity": Interval(0),
+    # HGG's value term is scaled by D (1 - gamma) / L.
+    "hgg.lipschitz": Interval(0, lo_open=True),
     # Hyperparameter arms: their fields and values are checked arm by arm (`validate`).
     "sweep": SweepPairs(),
 }
@@ -304,6 +306,9 @@ def field_problem(path: str, value, ranges: dict[str, Range] | None = None) -> s
 def cross_field_problem(cfg: TrainConfig) -> str | None:
     """The one-line message of the first violated constraint between fields, or None."""
     cur, sac, clf = cfg.curriculum, cfg.sac, cfg.classifier
+    problem = _algo_problem(cfg)
+    if problem:
+        return problem
     if clf.marginal_group > clf.batch_size:
         return (
             f"--classifier.marginal-group must be <= --classifier.batch-size "
@@ -342,5 +347,28 @@ def cross_field_problem(cfg: TrainConfig) -> str | None:
             f"--curriculum.archive-size must be <= {cfg.replay.capacity // horizon} (the "
             f"buffer's episode slots: --replay.capacity {cfg.replay.capacity} // {horizon} "
             f"steps), got {cur.archive_size}"
+        )
+    return None
+
+
+def _algo_problem(cfg: TrainConfig) -> str | None:
+    """A D2C-only setting (or another reward) given to an algorithm that fixes it."""
+    if cfg.algo == "d2c":
+        return None
+    fixed = ALGO_REWARDS[cfg.algo]
+    if fixed is not None and cfg.reward != fixed:
+        return (
+            f"--reward {cfg.reward} conflicts with --algo {cfg.algo}, which trains with the "
+            f"{fixed} reward (paper appendix A.1)"
+        )
+    if cfg.curriculum.variant != "d2c":
+        return (
+            f"--curriculum.variant {cfg.curriculum.variant} is a D2C ablation; it conflicts "
+            f"with --algo {cfg.algo}, which has its own curriculum"
+        )
+    if cfg.curriculum.goal_value_weight != 0:
+        return (
+            f"--curriculum.goal-value-weight {cfg.curriculum.goal_value_weight} weights D2C's "
+            f"matching; it conflicts with --algo {cfg.algo}, which has its own curriculum"
         )
     return None
