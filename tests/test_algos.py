@@ -205,3 +205,39 @@ def test_hgg_resume_equals_uninterrupted(tmp_path):
     assert loop.train(cfg, path, resume=True, quiet=True) == 0
     resumed = strip_time(logging_lib.read_metrics(path / "metrics.jsonl"))
     assert resumed == full
+
+
+# --- the comparison command ---------------------------------------------------------
+
+
+def test_summary_reads_targets_and_modes_per_seed():
+    from benchmarks import compare
+
+    rows = [
+        {"env_steps": 10, "eval/success": [0.1, 0.9], "eval/success/0": [0.2, 1.0],
+         "eval/success/1": [0.0, 0.8], "curriculum/distance": [5.0, 1.0]},
+        {"env_steps": 20, "sac/critic_loss": [1.0, 1.0]},
+        {"env_steps": 30, "eval/success": [0.8, 0.5], "eval/success/0": [1.0, 0.5],
+         "eval/success/1": [0.6, 0.5], "curriculum/distance": [2.0, 3.0]},
+    ]  # fmt: skip
+    s = compare.summarize(rows)
+    assert s["env_steps"] == 30 and s["to_target"] == [30.0, 10.0]
+    np.testing.assert_allclose(s["best"], [0.8, 0.9])
+    np.testing.assert_allclose(s["final_per_mode"][1], [0.6, 0.5])
+    table = compare.markdown_table({"d2c": s})
+    assert "| d2c | 2 | 30 | 0.65 ± 0.15 | 0.85 ± 0.05 |" in table
+
+
+def test_compare_trains_each_algo_and_writes_table_and_figure(tmp_path):
+    from benchmarks import compare
+
+    out = tmp_path / "cmp"
+    argv = ["--env", "medium_maze", "--preset", "tiny", "--algos", "her,hgg", "--seeds", "2"]
+    assert compare.main([*argv, "--out", str(out)]) == 0
+    table = (out / "comparison.md").read_text().splitlines()
+    assert [line.split("|")[1].strip() for line in table[2:]] == ["her", "hgg"]
+    assert all(line.split("|")[2].strip() == "2" for line in table[2:])
+    assert (out / "comparison.png").read_bytes()[:4] == b"\x89PNG"
+    # A second call finds both runs finished and only reports them.
+    assert compare.main([*argv, "--out", str(out), "--report-only"]) == 0
+    assert compare.main([*argv, "--out", str(out), "--algos", "d2c,nope"]) == 2
