@@ -439,7 +439,7 @@ def with_algo(cfg: TrainConfig, algo: str) -> TrainConfig:
       ValueError: for an unknown algo.
     """
     if algo not in ALGO_NAMES:
-        raise ValueError(f"unknown algo {algo!r}; valid algos: {', '.join(ALGO_NAMES)}")
+        raise ValueError(f"--algo must be one of {', '.join(ALGO_NAMES)}, got {algo!r}")
     if algo == "d2c":
         return dataclasses.replace(cfg, algo=algo)
     return dataclasses.replace(

@@ -93,7 +93,7 @@ _CONFLICTS = [
         ["--algo", "hgg", "--curriculum.goal-value-weight", "1"],
         "--curriculum.goal-value-weight 1.0",
     ),
-    (["--algo", "ppo"], "unknown algo 'ppo'; valid algos: d2c, her, hgg"),
+    (["--algo", "ppo"], "--algo must be one of d2c, her, hgg, got 'ppo'"),
 ]
 
 
@@ -241,3 +241,13 @@ def test_compare_trains_each_algo_and_writes_table_and_figure(tmp_path):
     # A second call finds both runs finished and only reports them.
     assert compare.main([*argv, "--out", str(out), "--report-only"]) == 0
     assert compare.main([*argv, "--out", str(out), "--algos", "d2c,nope"]) == 2
+
+
+def test_hgg_sweep_arm_equals_its_single_run(tmp_path):
+    """--algo under --sweep: each arm's run is the single run with that value and seed."""
+    swept = _train_tiny("medium_maze", "hgg", tmp_path / "sweep", "--sweep", "sac.tau=0.005,0.02")
+    single = _train_tiny("medium_maze", "hgg", tmp_path / "one", "--sac.tau", "0.02")
+    for row_sweep, row_single in zip(strip_time(swept), strip_time(single), strict=True):
+        for key, value in row_single.items():
+            if isinstance(row_sweep[key], list):
+                np.testing.assert_allclose(row_sweep[key][1], value, rtol=1e-5, err_msg=key)
