@@ -1,5 +1,6 @@
 """The benchmark's own arithmetic: the SAC update's FLOP count and the results file."""
 
+import jax
 import numpy as np
 import pytest
 
@@ -118,3 +119,19 @@ def test_visit_map_table_grid_by_hand():
         obstacles_xy = (np.array([[0.15, 0.05]]), np.array([[0.11, 0.04]]))  # x 0.04-0.26
 
     assert visit_map.table_grid(Boxed()).layout == ("....", "###.")
+
+
+def test_reward_probe_reports_every_distance_and_all_pairs(tmp_path):
+    """On a tiny run: one line per radius and per band, and the bands hold every pair."""
+    from benchmarks import reward_probe
+    from d2c_jax.training import cli, loop, runs
+
+    cfg, _, _ = cli.parse_args(["--env", "medium_maze", "--preset", "tiny"])
+    assert loop.train(cfg, tmp_path / "run", quiet=True) == 0
+    cfg, env, ts = runs.load_run(tmp_path / "run")
+    ts = jax.tree.map(lambda x: x[0], ts)
+    lines = reward_probe.probe(cfg, env, ts, 500, jax.random.key(0))
+    assert len(lines) == 1 + len(reward_probe.RADII) + len(reward_probe.BANDS)
+    pairs = [int(line.split(": ")[1].split(" pairs")[0]) for line in lines[-5:]]
+    assert sum(pairs) == 500
+    assert reward_probe.main([str(tmp_path / "missing")]) == 2
