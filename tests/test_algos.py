@@ -251,3 +251,37 @@ def test_hgg_sweep_arm_equals_its_single_run(tmp_path):
         for key, value in row_single.items():
             if isinstance(row_sweep[key], list):
                 np.testing.assert_allclose(row_sweep[key][1], value, rtol=1e-5, err_msg=key)
+
+
+class _EpisodeCounter(interface.HERDesired):
+    """A stateful probe curriculum: counts the episodes and successes it has observed."""
+
+    def init(self, key):
+        return {"episodes": jnp.zeros((), jnp.int32), "successes": jnp.zeros((), jnp.int32)}
+
+    def observe(self, state, episodes, inputs):
+        reached = episodes.success.any(axis=1).sum().astype(jnp.int32)
+        return {"episodes": state["episodes"] + episodes.success.shape[0],
+                "successes": state["successes"] + reached}  # fmt: skip
+
+
+def test_a_curriculum_state_observes_every_iteration_and_is_checkpointed(maze, tmp_path):
+    from d2c_jax.training import runs
+
+    cfg = config.with_algo(config.preset("medium_maze", "tiny"), "her")
+    agent = agent_lib.Agent(cfg, maze)
+    agent.curriculum = _EpisodeCounter(cfg, maze, agent.classifier_net)
+    step = jax.jit(agent.step)
+    ts = agent.init(jax.random.key(0))
+    successes = 0
+    for _ in range(3):
+        ts, metrics = step(ts)
+        successes += round(float(metrics["train/success_rate"]) * cfg.num_envs)
+    assert int(ts.curriculum_state["episodes"]) == 3 * cfg.num_envs
+    assert int(ts.curriculum_state["successes"]) == successes
+    ckpt = runs.open_checkpointer(tmp_path)
+    runs.save_state(ckpt, 3, ts)  # returns once the checkpoint is on disk
+    _, restored = runs.restore_or_fail(ckpt, agent.init(jax.random.key(1)), tmp_path)
+    ckpt.close()
+    assert int(restored.curriculum_state["episodes"]) == 3 * cfg.num_envs
+    assert int(restored.curriculum_state["successes"]) == successes
