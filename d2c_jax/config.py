@@ -213,15 +213,73 @@ class HGGConfig:
     (HGG's `hgg_L`, default 5; OUTPACE's copy used 50)."""
 
 
+@dataclasses.dataclass(frozen=True)
+class OutpaceConfig:
+    """OUTPACE (Cho, Lee & Kim 2023; `--algo outpace`): its meta-NML classifier, its AIM
+    potential and its curriculum cost. Defaults: the authors' maze settings
+    (outpace_official config/config_outpace.yaml; docs/BASELINES.md cites each)."""
+
+    nml_hidden_sizes: tuple[int, ...] = (2048, 2048)
+    """Meta-NML classifier MLP widths."""
+    nml_input_scale: float = 1.0
+    """Meta-NML inputs (and their distances) are multiplied by this (1/0.05 on Sawyer)."""
+    nml_inner_step: float = 0.01
+    """SGD step of the one adaptation step (MAML inner loop, and at query time)."""
+    nml_context_points: int = 63
+    """Points besides the query in an adaptation batch (points_per_task 64)."""
+    nml_query_weight_inner: float = 1.0 / 32
+    """The query's weight in an adaptation batch."""
+    nml_query_weight_outer: float = 0.5
+    """The query's weight in the meta-test loss."""
+    nml_lr: float = 1e-3
+    """Adam step of the meta-training."""
+    nml_tasks_per_step: int = 16
+    """MAML tasks averaged per Adam step (accumulation_steps)."""
+    nml_steps_per_round: int = 64
+    """Adam steps per meta-training round (one epoch of 1024 tasks / 16)."""
+    nml_every: int = 3000
+    """Env steps between meta-training rounds (whole iterations)."""
+    nml_initial_rounds: int = 3
+    """Rounds in the first iterations (num_initial_meta_epochs)."""
+    nml_train_points: int = 512
+    """Query points drawn per round, half negatives, half positives."""
+    nml_test_points: int = 2048
+    """Meta-test and fine-tuning points, half negatives, half positives."""
+    aim_members: int = 5
+    """AIM discriminator ensemble size."""
+    aim_hidden_sizes: tuple[int, ...] = (64, 64)
+    """Each member's MLP widths (tanh)."""
+    aim_lr: float = 1e-4
+    """Adam step of each member."""
+    aim_steps_per_1000: int = 10
+    """AIM updates per 1000 env steps."""
+    aim_batch_size: int = 512
+    """AIM batch (HER-relabelled curriculum-phase transitions)."""
+    aim_lipschitz: float = 0.1
+    """Largest change of the potential between consecutive states."""
+    aim_penalty: float = 25.0
+    """Weight of the Lipschitz hinge (lambda_coef; 50 on the spiral maze)."""
+    aim_target_noise: float = 0.1
+    """Std of the target point x+ = g + N(0, s^2) (0.01 on Sawyer)."""
+    aim_reward_offset: float = 0.1
+    """Reward normalisers: max + offset and std + offset of the last block's potentials."""
+    cost_lipschitz: float = 50.0
+    """L of the curriculum cost's AIM term D (1 - gamma) / L (hgg_L; 0.5 on Sawyer push)."""
+    goal_noise_std: float = 0.5
+    """Std of the Gaussian noise on each matched goal (0.05 on Sawyer)."""
+
+
 # --- the whole run ---------------------------------------------------------------
 
 # The curricula `--algo` selects (d2c_jax.curricula.interface): D2C, and the paper's
 # baselines built on the same SAC, HER, trajectory pool and auction.
-ALGO_NAMES = ("d2c", "her", "hgg")
+ALGO_NAMES = ("d2c", "her", "hgg", "outpace")
 # The reward each algorithm trains with; None: `TrainConfig.reward` decides (D2C's
 # intrinsic reward or its sparse ablation). Paper appendix A.1: every baseline but
-# OUTPACE is trained with the sparse reward.
-ALGO_REWARDS: dict[str, str | None] = {"d2c": None, "her": "sparse", "hgg": "sparse"}
+# OUTPACE is trained with the sparse reward; OUTPACE's "intrinsic" reward is its own (AIM).
+ALGO_REWARDS: dict[str, str | None] = {
+    "d2c": None, "her": "sparse", "hgg": "sparse", "outpace": "intrinsic",
+}  # fmt: skip
 
 
 @dataclasses.dataclass(frozen=True)
@@ -252,7 +310,7 @@ class TrainConfig:
     checkpoint_every: int = 50_000
     """Env steps between checkpoints: every ceil(checkpoint_every / E) iterations (and at
     the end, and on a signal). Default: 25 paper iterations of medium_maze (20 x H 100)."""
-    algo: Literal["d2c", "her", "hgg"] = "d2c"
+    algo: Literal["d2c", "her", "hgg", "outpace"] = "d2c"
     """The curriculum and its reward: D2C, or a baseline (HER alone, HGG); `with_algo`."""
     reward: Literal["intrinsic", "sparse"] = "intrinsic"
     """D2C's intrinsic reward p_pseudo(phi(s'); g), or the sparse ablation."""
@@ -268,6 +326,8 @@ class TrainConfig:
     """Curriculum."""
     hgg: HGGConfig = dataclasses.field(default_factory=HGGConfig)
     """HGG's matching cost (`--algo hgg`)."""
+    outpace: OutpaceConfig = dataclasses.field(default_factory=OutpaceConfig)
+    """OUTPACE's classifier, potential and cost (`--algo outpace`)."""
     sweep: tuple[tuple[str, tuple], ...] = ()
     """Hyperparameter arms (issue 13): (dotted field, values) pairs whose Cartesian
     product, times the num_seeds seeds, runs as one program (`d2c_jax.training.sweep`);
@@ -429,11 +489,12 @@ def preset(env: str, name: str) -> TrainConfig:
 
 
 def with_algo(cfg: TrainConfig, algo: str) -> TrainConfig:
-    """`cfg` trained by `algo` (`ALGO_NAMES`): a baseline gets its fixed reward
-    (`ALGO_REWARDS`) and none of D2C's own options: no random-walk buffer (baselines
-    never switch goals after success, so it would stay empty) and no beta value term
-    in a matching they do not use. The rest of the preset (SAC, HER, the trajectory
-    pool and its archive) is shared, so every method runs on the same parts.
+    """`cfg` trained by `algo` (`ALGO_NAMES`), on the preset's SAC, HER and pool.
+
+    HER and HGG get the sparse reward (`ALGO_REWARDS`) and none of D2C's own options: no
+    random-walk buffer (they never switch goals after success, so it would stay empty)
+    and no beta value term in a matching they do not use. OUTPACE gets its own
+    exploration settings and per-env constants (`_outpace_settings`).
 
     Raises:
       ValueError: for an unknown algo.
@@ -442,6 +503,8 @@ def with_algo(cfg: TrainConfig, algo: str) -> TrainConfig:
         raise ValueError(f"--algo must be one of {', '.join(ALGO_NAMES)}, got {algo!r}")
     if algo == "d2c":
         return dataclasses.replace(cfg, algo=algo)
+    if algo == "outpace":
+        return _outpace_settings(dataclasses.replace(cfg, algo=algo, reward="intrinsic"))
     return dataclasses.replace(
         cfg,
         algo=algo,
@@ -449,6 +512,50 @@ def with_algo(cfg: TrainConfig, algo: str) -> TrainConfig:
         replay=dataclasses.replace(cfg.replay, walk_fraction=0.0),
         curriculum=dataclasses.replace(cfg.curriculum, goal_value_weight=0.0),
     )
+
+
+def _outpace_settings(cfg: TrainConfig) -> TrainConfig:
+    """OUTPACE's own settings on top of `cfg` (outpace_official outpace_train.py's per-env
+    dicts and the README's flags; docs/BASELINES.md): its random walk and random-walk
+    buffer, a pool of the last 100 trajectories that moved (0.2 maze units, 0.02 m on
+    Sawyer), their last 50% every 4th state (6th on Ant), and the per-env constants."""
+    sawyer = cfg.env.startswith("sawyer")
+    with_walk = with_outpace_exploration(cfg)
+    curriculum = dataclasses.replace(
+        with_walk.curriculum,
+        archive_size=0,
+        goal_value_weight=0.0,
+        pool_min_move=0.02 if sawyer else 0.2,
+        cost_stride=6 if cfg.env == "ant" else 4,
+    )
+    outpace = cfg.outpace
+    if sawyer:
+        outpace = dataclasses.replace(
+            outpace,
+            nml_input_scale=1 / 0.05,
+            aim_target_noise=0.01,
+            goal_noise_std=0.05,
+            cost_lipschitz=0.5 if cfg.env == "sawyer_push" else outpace.cost_lipschitz,
+        )
+    if cfg.env == "spiral_maze":
+        outpace = dataclasses.replace(outpace, aim_penalty=50.0)
+    outpace = dataclasses.replace(outpace, **_OUTPACE_PRESET_SIZES.get(cfg.preset, {}))
+    return dataclasses.replace(with_walk, curriculum=curriculum, outpace=outpace)
+
+
+# OUTPACE's sizes per preset; `paper` keeps the authors' 2x2048 meta-NML network. Meta-NML
+# adapts a copy of the network for every query, and OUTPACE's random walk queries 10
+# candidates per env at every goal switch (about every step with 20 envs): at 2x2048 that
+# is hours per iteration on a CPU, so `quick` uses 2x64 and fewer meta-test points
+# (docs/BASELINES.md).
+_OUTPACE_PRESET_SIZES: dict[str, dict] = {
+    "quick": dict(nml_hidden_sizes=(64, 64), nml_train_points=256, nml_test_points=512),
+    "tiny": dict(
+        nml_hidden_sizes=(16, 16), nml_train_points=32, nml_test_points=64,
+        nml_context_points=7, nml_tasks_per_step=4, nml_steps_per_round=2,
+        aim_members=2, aim_hidden_sizes=(16, 16), aim_batch_size=32,
+    ),
+}  # fmt: skip
 
 
 def from_dict(cls, values: dict):

@@ -172,6 +172,12 @@ def _transitions(state: ReplayState, ep: jax.Array, t: jax.Array) -> Transition:
     )
 
 
+def sample_phase_steps(state: ReplayState, n: int, key: jax.Array, walk: bool):
+    """(n,) slots and (n,) steps uniform over the transitions of one phase (`_phase_steps`):
+    the curriculum phase (walk False) or the random walk (walk True)."""
+    return _phase_steps(state, n, key, walk)
+
+
 def _phase_steps(state: ReplayState, n: int, key: jax.Array, walk: bool):
     """(n,) slots and steps uniform over the transitions of one phase of the episodes.
 

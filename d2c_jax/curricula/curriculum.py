@@ -339,26 +339,61 @@ def proposal_metrics(goals: jax.Array, slots: jax.Array, matched_cost, full, con
     }
 
 
+def walk_candidates(env: GoalEnv, achieved_goal: jax.Array, key, n: int, r) -> jax.Array:
+    """n candidates phi(s_t) + U[-r, r] * mask, clipped to the goal bounds: (n, d)."""
+    shape = (n, achieved_goal.shape[-1])
+    return env.clip_goal(achieved_goal + _uniform_noise(env, key, shape, r))
+
+
+def mode_scores(env: GoalEnv, net: Classifier, params: dict, cands: jax.Array) -> jax.Array:
+    """SPEC §6's score of candidates (n, d): max over modes k of p_pseudo(c; g_k), (n,)."""
+    modes = jnp.asarray(env.goal_points, jnp.float32)  # (n_modes, d)
+    return p_pseudo(net, params, cands[:, None, :], modes[None]).max(axis=-1)
+
+
 def candidate_scores(
     env: GoalEnv, net: Classifier, params: dict, achieved_goal: jax.Array, key, n: int, r: float
 ) -> tuple[jax.Array, jax.Array]:
-    """n candidates phi(s_t) + U[-r, r] * mask, clipped, and their scores (SPEC §6).
-
-    The score of a candidate c is max over modes k of p_pseudo(c; g_k).
+    """n candidates (`walk_candidates`) and their SPEC §6 scores (`mode_scores`).
 
     Returns:
       candidates (n, d) and scores (n,).
     """
-    shape = (n, achieved_goal.shape[-1])
-    cands = env.clip_goal(achieved_goal + _uniform_noise(env, key, shape, r))  # (n, d)
-    modes = jnp.asarray(env.goal_points, jnp.float32)  # (n_modes, d)
-    return cands, p_pseudo(net, params, cands[:, None, :], modes[None]).max(axis=-1)
+    cands = walk_candidates(env, achieved_goal, key, n, r)
+    return cands, mode_scores(env, net, params, cands)
 
 
 def relaxed_threshold(scores: jax.Array, threshold: float, relax: float) -> jax.Array:
     """() the first of threshold, threshold - relax, ... that some score reaches (OUTPACE)."""
     shortfall = jnp.maximum(threshold - scores.max(), 0.0)
     return threshold - relax * jnp.ceil(shortfall / relax - 1e-6)
+
+
+def walk_goal(
+    cfg: CurriculumConfig,
+    env: GoalEnv,
+    achieved_goal: jax.Array,
+    key: jax.Array,
+    hp: CurriculumHyperparams,
+    score_fn: Callable[[jax.Array, jax.Array], jax.Array],
+) -> jax.Array:
+    """The goal after the current one is reached, for any candidate score.
+
+    C = cfg.post_success_candidates candidates (`walk_candidates`, r =
+    hp.post_success_range) scored by score_fn(candidates (C, d), key) -> (C,). Rule
+    "argmax": the best one wins. Rule "outpace" (OUTPACE's random walk): the candidates
+    scoring at least the threshold (relaxed step by step until one does) are sampled by
+    softmax(score / T), so the walk heads for uncertain places without always taking the
+    same one. Vmappable. Returns (d,) the new goal.
+    """
+    cands = walk_candidates(env, achieved_goal, key, cfg.post_success_candidates,
+                            hp.post_success_range)  # fmt: skip
+    scores = score_fn(cands, jax.random.fold_in(key, 2))
+    if cfg.post_success_rule == "argmax":
+        return cands[jnp.argmax(scores)]
+    threshold = relaxed_threshold(scores, hp.post_success_threshold, hp.post_success_relax)
+    logits = jnp.where(scores >= threshold - 1e-6, scores / hp.post_success_temperature, -jnp.inf)
+    return cands[jax.random.categorical(jax.random.fold_in(key, 1), logits)]
 
 
 def post_success_goal(
@@ -370,13 +405,8 @@ def post_success_goal(
     key: jax.Array,
     hp: CurriculumHyperparams | None = None,
 ) -> jax.Array:
-    """The goal after the current one is reached (SPEC §6, Alg. 1 lines 8-9).
-
-    C = cfg.post_success_candidates candidates phi(s_t) + U[-r, r] * mask (r =
-    hp.post_success_range), clipped, scored by `candidate_scores`. Rule "argmax": the
-    best one wins. Rule "outpace" (OUTPACE's random walk): the candidates scoring at least
-    the threshold (relaxed step by step until one does) are sampled by softmax(p / T), so
-    the walk heads for uncertain places without always taking the same one. Vmappable.
+    """D2C's goal after the current one is reached (SPEC §6, Alg. 1 lines 8-9): `walk_goal`
+    with SPEC §6's score, max over modes k of p_pseudo(c; g_k) (`mode_scores`).
 
     Args:
       cfg: curriculum config (the rule and the candidate count).
@@ -389,12 +419,6 @@ def post_success_goal(
       (d,) the new goal.
     """
     hp = hyperparams(cfg) if hp is None else hp
-    cands, scores = candidate_scores(
-        env, net, params, achieved_goal, key,
-        cfg.post_success_candidates, hp.post_success_range,
-    )  # fmt: skip
-    if cfg.post_success_rule == "argmax":
-        return cands[jnp.argmax(scores)]
-    threshold = relaxed_threshold(scores, hp.post_success_threshold, hp.post_success_relax)
-    logits = jnp.where(scores >= threshold - 1e-6, scores / hp.post_success_temperature, -jnp.inf)
-    return cands[jax.random.categorical(jax.random.fold_in(key, 1), logits)]
+    return walk_goal(
+        cfg, env, achieved_goal, key, hp, lambda cands, _: mode_scores(env, net, params, cands)
+    )

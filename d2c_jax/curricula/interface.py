@@ -25,7 +25,8 @@ import jax
 import jax.numpy as jnp
 
 from d2c_jax import config as config_lib
-from d2c_jax.core.types import Metrics
+from d2c_jax.core.types import Metrics, RewardFn
+from d2c_jax.curricula import classifier as classifier_lib
 from d2c_jax.curricula import curriculum
 from d2c_jax.curricula.classifier import Classifier
 from envs import GoalEnv
@@ -47,6 +48,11 @@ class CurriculumInputs(NamedTuple):
     classifier_params: dict  # the classifier ensemble's parameters
     value_fn: StateGoalValueFn | None  # the critic's V(s, g); None unless `needs_value`
     hp: curriculum.CurriculumHyperparams  # the traced curriculum hyperparameters
+    replay: object = None  # the replay buffer (`replay.ReplayState`), for `observe`
+    desired: jax.Array | None = None  # (n_modes, n, d) the desired examples
+    iteration: jax.Array | None = None  # () int32 iterations done before this one
+    relabel_prob: jax.Array | None = None  # () float32 HER's relabelling probability
+    key: jax.Array | None = None  # a PRNG key of the curriculum's own
 
 
 class Curriculum:
@@ -81,27 +87,32 @@ class Curriculum:
         """(n_slots, d) goals for the next episodes and their `curriculum/*` metrics."""
         raise NotImplementedError
 
-    def observe(self, state, episodes, inputs: CurriculumInputs):
-        """The state after this iteration's episodes (`rollout.Episodes`)."""
+    def observe(self, state, episodes, inputs: CurriculumInputs) -> tuple[object, Metrics]:
+        """The state after this iteration's episodes (`rollout.Episodes`, already in
+        inputs.replay) and its metrics."""
         del episodes, inputs
-        return state
+        return state, {}
 
-    def next_goal(self, classifier_params: dict, hp) -> GoalSwitch | None:
+    def next_goal(self, state, inputs: CurriculumInputs) -> GoalSwitch | None:
         """The goal switch after success (SPEC §6), or None: keep the goal."""
-        del classifier_params, hp
+        del state, inputs
         return None
+
+    def intrinsic_reward(self, state, classifier_params: dict) -> RewardFn:
+        """The "intrinsic" reward: D2C's p_pseudo(phi(s'); g) (SPEC §4) by default."""
+        del state
+        return classifier_lib.make_reward_fn(self.classifier_net, classifier_params)
 
 
 class D2CGoalSwitch:
     """Mixin: D2C's post-success goal choice (SPEC §6, Alg. 1 lines 8-9)."""
 
-    def next_goal(self, classifier_params: dict, hp) -> GoalSwitch:
+    def next_goal(self, state, inputs: CurriculumInputs) -> GoalSwitch:
         cfg, env, net = self.cfg.curriculum, self.env, self.classifier_net
+        params, hp = inputs.classifier_params, inputs.hp
 
         def next_goal(achieved_goal, key):
-            return curriculum.post_success_goal(
-                cfg, env, net, classifier_params, achieved_goal, key, hp
-            )
+            return curriculum.post_success_goal(cfg, env, net, params, achieved_goal, key, hp)
 
         return next_goal
 
@@ -166,6 +177,10 @@ def curriculum_class(cfg: config_lib.TrainConfig) -> type[Curriculum]:
         from d2c_jax.curricula import hgg  # here: hgg builds on this module
 
         return hgg.HGGCurriculum
+    if cfg.algo == "outpace":
+        from d2c_jax.curricula import outpace  # here: outpace builds on this module
+
+        return outpace.OutpaceCurriculum
     if cfg.algo == "her":
         return HERDesired
     if cfg.curriculum.variant == "none":

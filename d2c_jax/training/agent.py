@@ -218,10 +218,12 @@ class Agent:
         goals, cur_metrics = self.curriculum_goals(ts, k_cur)
         warmup = ts.iteration < self.schedule.warmup_iterations
         episodes = self.collect_episodes(ts, self.env_goals(ts, goals), warmup, k_col)
-        inputs = self.curriculum_inputs(ts)
+        ts = ts.replace(replay=replay.insert_episodes(ts.replay, episodes))
+        # The curriculum learns from the stored episodes (its own key: D2C's stream stays).
+        inputs = self.curriculum_inputs(ts, key=jax.random.fold_in(k_cur, 2))
+        cur_state, observe_metrics = self.curriculum.observe(ts.curriculum_state, episodes, inputs)
         ts = ts.replace(
-            curriculum_state=self.curriculum.observe(ts.curriculum_state, episodes, inputs),
-            replay=replay.insert_episodes(ts.replay, episodes),
+            curriculum_state=cur_state,
             curriculum_goals=goals,
             matching_metrics=cur_metrics,
             key=key,
@@ -229,7 +231,8 @@ class Agent:
             env_steps=ts.env_steps + self.schedule.env_steps,
         )
         ts, upd_metrics = self.updates(ts, k_upd)
-        return ts, {**cur_metrics, **upd_metrics, **self._episode_metrics(ts, episodes)}
+        metrics = {**cur_metrics, **observe_metrics, **upd_metrics}
+        return ts, {**metrics, **self._episode_metrics(ts, episodes)}
 
     def _episode_metrics(self, ts: TrainState, episodes: rollout.Episodes) -> dict:
         """The "train/*" metrics of this iteration's episodes and the parameter check."""
@@ -266,19 +269,22 @@ class Agent:
 
     def match(self, ts: TrainState, key) -> tuple[jax.Array, dict]:
         """A new curriculum: `propose` of the run's curriculum (`interface.Curriculum`)."""
-        inputs = self.curriculum_inputs(ts, jax.random.fold_in(key, 1))
+        inputs = self.curriculum_inputs(ts, pool_key=jax.random.fold_in(key, 1))
         goals, metrics = self.curriculum.propose(ts.curriculum_state, inputs, key)
         return goals, jax.tree.map(lambda x: x.astype(jnp.float32), metrics)
 
-    def curriculum_inputs(self, ts: TrainState, key=None) -> interface.CurriculumInputs:
+    def curriculum_inputs(
+        self, ts: TrainState, pool_key=None, key=None
+    ) -> interface.CurriculumInputs:
         """What the curriculum reads (`interface.CurriculumInputs`): the matching pool,
-        drawn with `key` (None: the P most recent episodes only), the classifier and,
+        drawn with `pool_key` (None: the P most recent episodes only), the classifier,
+        the buffer, the desired examples, the iteration, the curriculum's own `key` and,
         where it asks for them, the pool's observations and the critic's V(s, g)."""
         cur, pool_size = self.curriculum, self.cfg.curriculum.pool_size
-        if key is None:
+        if pool_key is None:
             slots, pool_valid = replay.recent_episode_slots(ts.replay, pool_size)
         else:
-            slots, pool_valid = self._matching_pool(ts, key)
+            slots, pool_valid = self._matching_pool(ts, pool_key)
         start_obs = self.constants.start_obs
         return interface.CurriculumInputs(
             pool_ag=ts.replay.achieved_goal[slots],  # (P + A, H + 1, d)
@@ -289,6 +295,11 @@ class Agent:
             classifier_params=ts.classifier.params,
             value_fn=self._value_fn(ts) if cur.needs_value else None,
             hp=ts.hparams.curriculum,
+            replay=ts.replay,
+            desired=ts.desired,
+            iteration=ts.iteration,
+            relabel_prob=ts.hparams.relabel_prob,
+            key=key,
         )
 
     def _matching_pool(self, ts: TrainState, key) -> tuple[jax.Array, jax.Array]:
@@ -353,7 +364,8 @@ class Agent:
             k_actor, k_uniform = jax.random.split(key)
             return jnp.where(warmup, uniform(obs, goal, k_uniform), actor(obs, goal, k_actor))
 
-        next_goal = self.curriculum.next_goal(ts.classifier.params, ts.hparams.curriculum)
+        inputs = self.curriculum_inputs(ts, key=jax.random.fold_in(key, 3))
+        next_goal = self.curriculum.next_goal(ts.curriculum_state, inputs)
         switch_every = 0 if next_goal is None else cfg.curriculum.post_success_switch_every
         return rollout.collect(env, policy, next_goal, goals, cfg.num_envs, key, switch_every)
 
@@ -382,11 +394,13 @@ class Agent:
         # SAC metrics: the rounds' mean where rounds hold SAC updates, else the remainder's.
         return ts, {**rest, **jax.tree.map(jnp.mean, metrics)}
 
-    def reward_fn(self, clf_params, sparse: jax.Array) -> RewardFn:
-        """The reward of SPEC §4: intrinsic p_pseudo, or the sparse ablation where the
-        traced `sparse` (() bool) says so; only the rewards some run uses are computed."""
+    def reward_fn(self, ts: TrainState) -> RewardFn:
+        """The reward of SPEC §4: the curriculum's intrinsic reward (D2C's p_pseudo), or
+        the sparse one where the traced `ts.hparams.sparse_reward` says so; only the
+        rewards some run uses are computed."""
+        sparse = ts.hparams.sparse_reward
         sparse_fn = her.sparse_reward_fn(self.env)
-        intrinsic_fn = classifier.make_reward_fn(self.classifier_net, clf_params)
+        intrinsic_fn = self.curriculum.intrinsic_reward(ts.curriculum_state, ts.classifier.params)
         if self.rewards == ("sparse",):
             return sparse_fn
         if self.rewards == ("intrinsic",):
@@ -402,7 +416,7 @@ class Agent:
         """
         cfg = self.cfg
         k_batch, k_upd = jax.random.split(key)
-        reward_fn = self.reward_fn(ts.classifier.params, ts.hparams.sparse_reward)
+        reward_fn = self.reward_fn(ts)
         keys = jax.random.split(k_batch, sac.block_size(cfg.sac))
         prob, walk = ts.hparams.relabel_prob, cfg.replay.walk_fraction
         batches = jax.vmap(
