@@ -262,7 +262,7 @@ class _EpisodeCounter(interface.HERDesired):
     def observe(self, state, episodes, inputs):
         reached = episodes.success.any(axis=1).sum().astype(jnp.int32)
         return {"episodes": state["episodes"] + episodes.success.shape[0],
-                "successes": state["successes"] + reached}  # fmt: skip
+                "successes": state["successes"] + reached}, {}  # fmt: skip
 
 
 def test_a_curriculum_state_observes_every_iteration_and_is_checkpointed(maze, tmp_path):
