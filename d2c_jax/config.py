@@ -269,17 +269,49 @@ class OutpaceConfig:
     """Std of the Gaussian noise on each matched goal (0.05 on Sawyer)."""
 
 
+@dataclasses.dataclass(frozen=True)
+class TeachersConfig:
+    """The goal-space teachers of psclklnk/currot (`--algo plr|alp_gmm`), with the defaults
+    of its maze ("sparse goal reaching") experiment (docs/BASELINES.md)."""
+
+    plr_replay_rate: float = 0.55
+    """PLR: probability of replaying a buffered goal rather than drawing a new one."""
+    plr_buffer_size: int = 100
+    """PLR: goals kept with their scores."""
+    plr_beta: float = 0.15
+    """PLR: temperature of the rank prioritisation."""
+    plr_rho: float = 0.45
+    """PLR: weight of the staleness distribution in the replay mixture."""
+    alp_random_ratio: float = 0.2
+    """ALP-GMM: share of goals drawn uniformly over the goal bounds."""
+    alp_fit_rate: int = 200
+    """ALP-GMM: episodes between mixture fits, and the (goal, ALP) rows each fit uses."""
+    alp_history: int = 500
+    """ALP-GMM: past episodes searched for the nearest earlier goal."""
+    alp_max_components: int = 10
+    """ALP-GMM: mixtures of 2..this many components are fitted; the least AIC is kept."""
+    alp_tol: float = 1e-3
+    """ALP-GMM: EM stops when the mean log-likelihood changes by less than this."""
+    alp_reg_covar: float = 1e-6
+    """ALP-GMM: added to every covariance's diagonal."""
+    alp_max_iter: int = 100
+    """ALP-GMM: EM iterations at most."""
+
+
 # --- the whole run ---------------------------------------------------------------
 
 # The curricula `--algo` selects (d2c_jax.curricula.interface): D2C, and the paper's
 # baselines built on the same SAC, HER, trajectory pool and auction.
-ALGO_NAMES = ("d2c", "her", "hgg", "outpace")
+ALGO_NAMES = ("d2c", "her", "hgg", "outpace", "plr", "alp_gmm")
 # The reward each algorithm trains with; None: `TrainConfig.reward` decides (D2C's
 # intrinsic reward or its sparse ablation). Paper appendix A.1: every baseline but
 # OUTPACE is trained with the sparse reward; OUTPACE's "intrinsic" reward is its own (AIM).
 ALGO_REWARDS: dict[str, str | None] = {
     "d2c": None, "her": "sparse", "hgg": "sparse", "outpace": "intrinsic",
+    "plr": "sparse", "alp_gmm": "sparse",
 }  # fmt: skip
+# The teachers: one new goal per episode from the goal bounds, scored on its return.
+TEACHER_ALGOS = ("plr", "alp_gmm")
 
 
 @dataclasses.dataclass(frozen=True)
@@ -310,7 +342,7 @@ class TrainConfig:
     checkpoint_every: int = 50_000
     """Env steps between checkpoints: every ceil(checkpoint_every / E) iterations (and at
     the end, and on a signal). Default: 25 paper iterations of medium_maze (20 x H 100)."""
-    algo: Literal["d2c", "her", "hgg", "outpace"] = "d2c"
+    algo: Literal["d2c", "her", "hgg", "outpace", "plr", "alp_gmm"] = "d2c"
     """The curriculum and its reward: D2C, or a baseline (HER alone, HGG); `with_algo`."""
     reward: Literal["intrinsic", "sparse"] = "intrinsic"
     """D2C's intrinsic reward p_pseudo(phi(s'); g), or the sparse ablation."""
@@ -328,6 +360,8 @@ class TrainConfig:
     """HGG's matching cost (`--algo hgg`)."""
     outpace: OutpaceConfig = dataclasses.field(default_factory=OutpaceConfig)
     """OUTPACE's classifier, potential and cost (`--algo outpace`)."""
+    teachers: TeachersConfig = dataclasses.field(default_factory=TeachersConfig)
+    """The goal-space teachers (`--algo plr|alp_gmm`)."""
     sweep: tuple[tuple[str, tuple], ...] = ()
     """Hyperparameter arms (issue 13): (dotted field, values) pairs whose Cartesian
     product, times the num_seeds seeds, runs as one program (`d2c_jax.training.sweep`);
@@ -505,12 +539,20 @@ def with_algo(cfg: TrainConfig, algo: str) -> TrainConfig:
         return dataclasses.replace(cfg, algo=algo)
     if algo == "outpace":
         return _outpace_settings(dataclasses.replace(cfg, algo=algo, reward="intrinsic"))
+    curriculum = dataclasses.replace(cfg.curriculum, goal_value_weight=0.0)
+    if algo in TEACHER_ALGOS:  # one goal per episode, proposed every iteration
+        curriculum = dataclasses.replace(
+            curriculum,
+            n_slots=cfg.num_envs,
+            pool_size=max(cfg.num_envs, curriculum.pool_size),
+            rematch_every=_iteration_steps(cfg.env, cfg.num_envs, 1),
+        )
     return dataclasses.replace(
         cfg,
         algo=algo,
         reward=ALGO_REWARDS[algo],
         replay=dataclasses.replace(cfg.replay, walk_fraction=0.0),
-        curriculum=dataclasses.replace(cfg.curriculum, goal_value_weight=0.0),
+        curriculum=curriculum,
     )
 
 

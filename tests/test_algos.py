@@ -173,7 +173,7 @@ def test_hgg_proposes_the_optimal_matching(maze):
         pool_ag, pool_obs, jnp.ones(15, bool), start, None, None, value_fn,
         curriculum.hyperparams(cfg.curriculum),
     )  # fmt: skip
-    goals, metrics = cur.propose(None, inputs, k_prop)
+    goals, metrics, _ = cur.propose(None, inputs, k_prop)
     # The same targets and costs, solved by scipy.
     targets = curriculum.goal_slots(maze, 6, jax.random.split(k_prop)[0])
     traj = curriculum.subsample(pool_ag, cfg.curriculum.cost_stride)

@@ -91,9 +91,8 @@ class HGGCurriculum(Curriculum):
     needs_pool_obs = True
     needs_value = True
 
-    def propose(self, state, inputs: CurriculumInputs, key) -> tuple[jax.Array, Metrics]:
+    def propose(self, state, inputs: CurriculumInputs, key) -> tuple[jax.Array, Metrics, object]:
         """K goals by HGG's matching; before the pool is full, D2C's warm-up goals."""
-        del state
         cur, env = self.cfg.curriculum, self.env
         key_slots, key_warm = jax.random.split(key)
         targets = curriculum.goal_slots(env, cur.n_slots, key_slots)  # (K, d)
@@ -120,4 +119,4 @@ class HGGCurriculum(Curriculum):
         goals = jnp.where(full, env.clip_goal(candidates[rows, solved.assignment]), warm)
         matched_cost = jnp.where(full, cost[rows, solved.assignment].mean(), 0.0)
         metrics = curriculum.proposal_metrics(goals, targets, matched_cost, full, solved.converged)
-        return goals, metrics
+        return goals, metrics, state

@@ -5,7 +5,7 @@ methods are pure, jittable functions of its own state pytree, so every method ru
 inside the one jitted iteration, under vmap over runs:
 
   init(key) -> state                      its own evolving state (checkpointed with the run)
-  propose(state, inputs, key) -> (goals (K, d), metrics)      goals for the next episodes
+  propose(state, inputs, key) -> (goals (K, d), metrics, state)   goals for the next episodes
   observe(state, episodes, inputs) -> state                   learn from the new episodes
 
 and it says what it trains with: `reward` ("intrinsic", D2C's p_pseudo, or "sparse"),
@@ -83,8 +83,9 @@ class Curriculum:
         del key
         return None
 
-    def propose(self, state, inputs: CurriculumInputs, key) -> tuple[jax.Array, Metrics]:
-        """(n_slots, d) goals for the next episodes and their `curriculum/*` metrics."""
+    def propose(self, state, inputs: CurriculumInputs, key) -> tuple[jax.Array, Metrics, object]:
+        """(n_slots, d) goals for the next episodes, their `curriculum/*` metrics and the
+        state (a teacher records what it proposed, to score it in `observe`)."""
         raise NotImplementedError
 
     def observe(self, state, episodes, inputs: CurriculumInputs) -> tuple[object, Metrics]:
@@ -130,8 +131,7 @@ class MatchingCurriculum(D2CGoalSwitch, Curriculum):
         self.needs_pool_obs = uses_goal_value
         self.needs_value = uses_goal_value or cfg.curriculum.variant == "value"
 
-    def propose(self, state, inputs: CurriculumInputs, key) -> tuple[jax.Array, Metrics]:
-        del state
+    def propose(self, state, inputs: CurriculumInputs, key) -> tuple[jax.Array, Metrics, object]:
         start_value_fn = goal_value_fn = None
         if self.cfg.curriculum.variant == "value":
             start_value_fn = lambda goals: inputs.value_fn(inputs.start_obs, goals)  # noqa: E731
@@ -140,12 +140,13 @@ class MatchingCurriculum(D2CGoalSwitch, Curriculum):
             def goal_value_fn(obs, goal):
                 return inputs.value_fn(obs, jnp.broadcast_to(goal, obs.shape[:-1] + goal.shape))
 
-        return curriculum.propose(
+        goals, metrics = curriculum.propose(
             self.cfg.curriculum, self.env, self.classifier_net, inputs.classifier_params,
             inputs.pool_ag, inputs.pool_valid, inputs.start_goal, key, start_value_fn,
             gamma=self.cfg.sac.gamma, pool_obs=inputs.pool_obs, goal_value_fn=goal_value_fn,
             hp=inputs.hp,
         )  # fmt: skip
+        return goals, metrics, state
 
 
 class DesiredExamples(Curriculum):
@@ -153,10 +154,10 @@ class DesiredExamples(Curriculum):
     curriculum" ablation (intrinsic reward, D2C's goal switch) and HER alone (sparse
     reward, the goal kept for the whole episode)."""
 
-    def propose(self, state, inputs: CurriculumInputs, key) -> tuple[jax.Array, Metrics]:
-        del state, inputs
+    def propose(self, state, inputs: CurriculumInputs, key) -> tuple[jax.Array, Metrics, object]:
+        del inputs
         slots = curriculum.goal_slots(self.env, self.cfg.curriculum.n_slots, key)
-        return slots, curriculum.proposal_metrics(slots, slots, 0.0, True, True)
+        return slots, curriculum.proposal_metrics(slots, slots, 0.0, True, True), state
 
 
 class NoCurriculumAblation(D2CGoalSwitch, DesiredExamples):
@@ -181,6 +182,10 @@ def curriculum_class(cfg: config_lib.TrainConfig) -> type[Curriculum]:
         from d2c_jax.curricula import outpace  # here: outpace builds on this module
 
         return outpace.OutpaceCurriculum
+    if cfg.algo in config_lib.TEACHER_ALGOS:
+        from d2c_jax.curricula import teachers  # here: teachers build on this module
+
+        return {"plr": teachers.PLRTeacher, "alp_gmm": teachers.ALPGMMTeacher}[cfg.algo]
     if cfg.algo == "her":
         return HERDesired
     if cfg.curriculum.variant == "none":

@@ -222,7 +222,8 @@ class OutpaceCurriculum(Curriculum):
         warm = curriculum.warmup_goals(env, inputs.start_goal, cur.n_slots, k_warm)
         goals = jnp.where(full, env.clip_goal(candidates + noise * mask), warm)
         matched = jnp.where(full, per_traj[solved.assignment].mean(), 0.0)
-        return goals, curriculum.proposal_metrics(goals, slots, matched, full, solved.converged)
+        metrics = curriculum.proposal_metrics(goals, slots, matched, full, solved.converged)
+        return goals, metrics, state
 
     def next_goal(self, state: OutpaceState, inputs: CurriculumInputs) -> GoalSwitch:
         """OUTPACE's random walk: candidates phi(s) + U(-r, r), scored by p_NML, the

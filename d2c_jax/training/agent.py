@@ -215,13 +215,13 @@ class Agent:
         Warm-up (SPEC §2: random actions) while ts.iteration < schedule.warmup_iterations.
         """
         key, k_cur, k_col, k_upd = jax.random.split(ts.key, 4)
-        goals, cur_metrics = self.curriculum_goals(ts, k_cur)
+        goals, cur_metrics, cur_state = self.curriculum_goals(ts, k_cur)
         warmup = ts.iteration < self.schedule.warmup_iterations
         episodes = self.collect_episodes(ts, self.env_goals(ts, goals), warmup, k_col)
         ts = ts.replace(replay=replay.insert_episodes(ts.replay, episodes))
         # The curriculum learns from the stored episodes (its own key: D2C's stream stays).
         inputs = self.curriculum_inputs(ts, key=jax.random.fold_in(k_cur, 2))
-        cur_state, observe_metrics = self.curriculum.observe(ts.curriculum_state, episodes, inputs)
+        cur_state, observe_metrics = self.curriculum.observe(cur_state, episodes, inputs)
         ts = ts.replace(
             curriculum_state=cur_state,
             curriculum_goals=goals,
@@ -254,9 +254,10 @@ class Agent:
 
     # --- curriculum -----------------------------------------------------------------
 
-    def curriculum_goals(self, ts: TrainState, key) -> tuple[jax.Array, dict]:
-        """Goals (K, d) of this iteration: a new matching every `schedule.rematch_every`
-        iterations, else the held goals (their `curriculum/*` metrics with them).
+    def curriculum_goals(self, ts: TrainState, key) -> tuple[jax.Array, dict, object]:
+        """Goals (K, d) of this iteration, their `curriculum/*` metrics and the curriculum's
+        state: a new proposal every `schedule.rematch_every` iterations, else the held
+        goals (their metrics and the state with them).
 
         `lax.cond` on the iteration count: a real branch for one seed; under vmap over
         seeds it becomes a select and matches every iteration, as before.
@@ -264,14 +265,14 @@ class Agent:
         if self.schedule.rematch_every == 1:
             return self.match(ts, key)
         due = ts.iteration % self.schedule.rematch_every == 0
-        held = lambda: (ts.curriculum_goals, ts.matching_metrics)  # noqa: E731
+        held = lambda: (ts.curriculum_goals, ts.matching_metrics, ts.curriculum_state)  # noqa: E731
         return jax.lax.cond(due, lambda: self.match(ts, key), held)
 
-    def match(self, ts: TrainState, key) -> tuple[jax.Array, dict]:
+    def match(self, ts: TrainState, key) -> tuple[jax.Array, dict, object]:
         """A new curriculum: `propose` of the run's curriculum (`interface.Curriculum`)."""
         inputs = self.curriculum_inputs(ts, pool_key=jax.random.fold_in(key, 1))
-        goals, metrics = self.curriculum.propose(ts.curriculum_state, inputs, key)
-        return goals, jax.tree.map(lambda x: x.astype(jnp.float32), metrics)
+        goals, metrics, state = self.curriculum.propose(ts.curriculum_state, inputs, key)
+        return goals, jax.tree.map(lambda x: x.astype(jnp.float32), metrics), state
 
     def curriculum_inputs(
         self, ts: TrainState, pool_key=None, key=None

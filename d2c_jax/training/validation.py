@@ -220,6 +220,19 @@ _RANGE_EXCEPTIONS: dict[str, Range] = {
     "curriculum.post_success_switch_every": Interval(0, integer=True),
     "curriculum.archive_size": Interval(0, integer=True),
     "curriculum.archive_rarity": Interval(0),
+    # ALP-GMM fits mixtures of 2 or more components on alp_fit_rate rows.
+    "teachers.alp_fit_rate": Interval(2, integer=True),
+    "teachers.alp_max_components": Interval(2, integer=True),
+    # Probabilities.
+    "teachers.plr_replay_rate": Interval(0, 1),
+    "teachers.plr_rho": Interval(0, 1),
+    "teachers.alp_random_ratio": Interval(0, 1),
+    # PLR's rank temperature divides.
+    "teachers.plr_beta": Interval(0, lo_open=True),
+    # OUTPACE divides by L and by (std + offset).
+    "outpace.cost_lipschitz": Interval(0, lo_open=True),
+    "outpace.aim_reward_offset": Interval(0, lo_open=True),
+    "outpace.nml_input_scale": Interval(0, lo_open=True),
     # HGG's value term is scaled by D (1 - gamma) / L.
     "hgg.lipschitz": Interval(0, lo_open=True),
     # Hyperparameter arms: their fields and values are checked arm by arm (`validate`).

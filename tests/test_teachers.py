@@ -1,0 +1,154 @@
+"""The goal-space teachers (`--algo plr|alp_gmm`, issue 20): rules by hand, and runs."""
+
+import dataclasses
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+import envs
+from d2c_jax import config
+from d2c_jax.core import rollout
+from d2c_jax.curricula import interface, teachers
+from d2c_jax.training import cli, loop
+from d2c_jax.training import logging as logging_lib
+
+TEACHERS = config.TEACHER_ALGOS
+
+
+@pytest.fixture(scope="module")
+def maze():
+    return envs.make("medium_maze")
+
+
+def _teacher(maze, algo, **teacher_fields):
+    cfg = config.with_algo(config.preset("medium_maze", "tiny"), algo)
+    cfg = dataclasses.replace(cfg, teachers=dataclasses.replace(cfg.teachers, **teacher_fields))
+    return cfg, interface.make_curriculum(cfg, maze, None)
+
+
+def _episodes(goals, first_success, horizon=5, obs_dim=3):
+    """Episodes whose goal is held and whose success starts at `first_success` (H: never)."""
+    n = goals.shape[0]
+    t = jnp.arange(horizon)
+    success = t[None] >= jnp.asarray(first_success)[:, None]
+    return rollout.Episodes(
+        obs=jnp.zeros((n, horizon + 1, obs_dim)),
+        achieved_goal=jnp.zeros((n, horizon + 1, goals.shape[1])),
+        action=jnp.zeros((n, horizon, 2)),
+        goal=jnp.broadcast_to(goals[:, None], (n, horizon, goals.shape[1])),
+        success=success,
+        walk_start=jnp.full((n,), horizon, jnp.int32),
+    )
+
+
+def test_episode_return_is_the_discounted_sum_of_sparse_rewards():
+    success = jnp.array([[False, True, True], [False, False, False]])
+    np.testing.assert_allclose(teachers.episode_returns(success, 0.5), [0.5 + 0.25, 0.0])
+
+
+def test_plr_replay_distribution_by_hand():
+    scores = jnp.array([3.0, 1.0, 2.0, 9.0])
+    staleness = jnp.array([1.0, 2.0, 3.0, 5.0])
+    filled = jnp.array([True, True, True, False])  # the 4th entry is empty
+    p = teachers.plr_replay_distribution(scores, staleness, filled, beta=1.0, rho=0.5)
+    by_rank = np.array([1.0, 1 / 3, 1 / 2]) / (1 + 1 / 3 + 1 / 2)  # ranks 1, 3, 2
+    by_staleness = np.array([1.0, 2.0, 3.0]) / 6.0
+    np.testing.assert_allclose(p[:3], 0.5 * by_rank + 0.5 * by_staleness, rtol=1e-5)
+    assert float(p[3]) == 0.0
+
+
+def test_plr_buffer_inserts_scores_and_replaces_the_weakest(maze):
+    cfg, plr = _teacher(maze, "plr", plr_buffer_size=2)
+    gamma = cfg.sac.gamma
+    state = plr.init(jax.random.key(0)).replace(proposed=jnp.array([-1, -1, -1, -1], jnp.int32))
+    inputs = interface.CurriculumInputs(
+        None, None, None, None, None, None, lambda obs, g: jnp.zeros(obs.shape[:-1]), None
+    )  # V = 0 everywhere: an episode's score is its return
+    goals = jnp.array([[1.0, 1.0], [2.0, 2.0], [3.0, 3.0], [4.0, 4.0]])
+    first = jnp.array([5, 4, 2, 5])  # returns 0, gamma^4, gamma^2 + gamma^3 + gamma^4, 0
+    state, _ = plr.observe(state, _episodes(goals, first), inputs)
+    r1, r2 = gamma**4, gamma**2 + gamma**3 + gamma**4
+    # Episodes 0 and 1 fill the two entries; 2 replaces the weakest (episode 0, score 0);
+    # 3 (score 0) does not beat the weakest left (r1) and is dropped.
+    np.testing.assert_allclose(state.goals, [[3.0, 3.0], [2.0, 2.0]])
+    np.testing.assert_allclose(state.scores, [r2, r1], rtol=1e-6)
+    np.testing.assert_allclose(state.staleness, [1.0, 2.0])  # played 1 and 2 episodes ago
+
+
+def test_plr_replays_only_buffered_goals_at_replay_rate_one(maze):
+    _, plr = _teacher(maze, "plr", plr_replay_rate=1.0)
+    state = plr.init(jax.random.key(0))
+    state = state.replace(
+        goals=state.goals.at[:2].set(jnp.array([[1.0, 2.0], [3.0, 4.0]])),
+        filled=state.filled.at[:2].set(True),
+        scores=state.scores.at[:2].set(jnp.array([1.0, 0.5])),
+    )
+    goals, _, state = plr.propose(state, None, jax.random.key(1))
+    assert bool(jnp.all((state.proposed == 0) | (state.proposed == 1)))
+    np.testing.assert_allclose(goals, state.goals[state.proposed])
+
+
+def test_alp_is_the_return_change_at_the_nearest_earlier_goal():
+    history = jnp.array([[0.0, 0.0], [5.0, 5.0], [1.0, 0.0], [9, 9], [8, 8], [7, 7]])
+    returns = jnp.array([1.0, 2.0, 4.0, 0.0, 0.0, 0.0])
+    alp = teachers.absolute_learning_progress(jnp.array([1.2, 0.1]), 10.0, history, returns, 6)
+    assert float(alp) == pytest.approx(6.0)  # nearest is (1, 0) with return 4
+    young = teachers.absolute_learning_progress(jnp.array([1.2, 0.1]), 10.0, history, returns, 5)
+    assert float(young) == 0.0  # OUTPACE's reference waits for more than 5 episodes
+
+
+def test_alp_gmm_samples_where_learning_progresses(maze):
+    """(goal, ALP) rows with progress only near (10, 10): after a fit, most non-random
+    goals come from there."""
+    _, alp = _teacher(maze, "alp_gmm", alp_fit_rate=200, alp_max_components=4)
+    state = alp.init(jax.random.key(0))
+    k_a, k_b = jax.random.split(jax.random.key(1))
+    near = jnp.array([10.0, 10.0]) + jax.random.normal(k_a, (100, 2))
+    far = jax.random.uniform(k_b, (100, 2), minval=-16.0, maxval=16.0)
+    rows = jnp.concatenate([
+        jnp.concatenate([near, jnp.full((100, 1), 5.0)], axis=1),
+        jnp.concatenate([far, jnp.zeros((100, 1))], axis=1),
+    ])  # fmt: skip
+    state = alp._refit(state.replace(tasks=rows), jax.random.key(2))
+    assert bool(state.fitted)
+    hits = []
+    for i in range(10):
+        goals, _, _ = alp.propose(state, None, jax.random.key(10 + i))
+        hits.append(np.linalg.norm(np.asarray(goals) - 10.0, axis=-1) < 4.0)
+    assert np.mean(hits) >= 0.6, np.mean(hits)  # 80% from the mixture, nearly all near
+
+
+# --- runs ---------------------------------------------------------------------------------
+
+
+def _train(algo, out, *extra):
+    cfg, _, _ = cli.parse_args(["--env", "medium_maze", "--preset", "tiny", "--algo", algo, *extra])
+    assert loop.train(cfg, out, quiet=True) == 0
+    return [{k: v for k, v in r.items() if not k.startswith("time/")}
+            for r in logging_lib.read_metrics(out / "metrics.jsonl")]  # fmt: skip
+
+
+@pytest.mark.parametrize("algo", TEACHERS)
+def test_teacher_trains_and_resumes_like_an_uninterrupted_run(algo, tmp_path):
+    extra = ("--teachers.alp-fit-rate", "8", "--total-steps", "1200")
+    full = _train(algo, tmp_path / "full", *extra)
+    assert np.isfinite(full[-1]["eval/success"]) and 0 <= full[-1]["sac/reward_mean"] <= 1
+    path = tmp_path / "resumed"
+    _train(algo, path, "--teachers.alp-fit-rate", "8", "--total-steps", "400")
+    cfg, _, _ = cli.parse_args(["--env", "medium_maze", "--preset", "tiny", "--algo", algo, *extra])
+    assert loop.train(cfg, path, resume=True, quiet=True) == 0
+    resumed = [{k: v for k, v in r.items() if not k.startswith("time/")}
+               for r in logging_lib.read_metrics(path / "metrics.jsonl")]  # fmt: skip
+    assert resumed == full
+    if algo == "alp_gmm":
+        assert full[-1]["alp_gmm/fitted"] == 1.0  # 12 episodes, a fit every 8
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("algo", TEACHERS)
+@pytest.mark.parametrize("env_name", [e for e in envs.ENV_NAMES if e != "medium_maze"])
+def test_teacher_trains_tiny_on_every_env(env_name, algo, tmp_path):
+    cfg, _, _ = cli.parse_args(["--env", env_name, "--preset", "tiny", "--algo", algo])
+    assert loop.train(cfg, tmp_path / "run", quiet=True) == 0
