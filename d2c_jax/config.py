@@ -271,7 +271,7 @@ class OutpaceConfig:
 
 @dataclasses.dataclass(frozen=True)
 class TeachersConfig:
-    """The goal-space teachers of psclklnk/currot (`--algo plr|alp_gmm`), with the defaults
+    """The goal-space teachers of psclklnk/currot (`--algo plr|alp_gmm|vds`), with the defaults
     of its maze ("sparse goal reaching") experiment (docs/BASELINES.md)."""
 
     plr_replay_rate: float = 0.55
@@ -296,22 +296,34 @@ class TeachersConfig:
     """ALP-GMM: added to every covariance's diagonal."""
     alp_max_iter: int = 100
     """ALP-GMM: EM iterations at most."""
+    vds_members: int = 5
+    """VDS: Q-functions in the ensemble."""
+    vds_hidden_sizes: tuple[int, ...] = (128, 128, 128)
+    """VDS: each Q-function's widths (tanh)."""
+    vds_lr: float = 5e-4
+    """VDS: Adam step of the ensemble."""
+    vds_updates_per_10k: int = 800
+    """VDS: TD updates per 10,000 env steps (10 epochs x 80 batches per 10k steps)."""
+    vds_batch_size: int = 512
+    """VDS: transitions per TD update and member."""
+    vds_candidates: int = 1000
+    """VDS: uniform candidate goals scored by the ensemble's disagreement."""
 
 
 # --- the whole run ---------------------------------------------------------------
 
 # The curricula `--algo` selects (d2c_jax.curricula.interface): D2C, and the paper's
 # baselines built on the same SAC, HER, trajectory pool and auction.
-ALGO_NAMES = ("d2c", "her", "hgg", "outpace", "plr", "alp_gmm")
+ALGO_NAMES = ("d2c", "her", "hgg", "outpace", "plr", "alp_gmm", "vds")
 # The reward each algorithm trains with; None: `TrainConfig.reward` decides (D2C's
 # intrinsic reward or its sparse ablation). Paper appendix A.1: every baseline but
 # OUTPACE is trained with the sparse reward; OUTPACE's "intrinsic" reward is its own (AIM).
 ALGO_REWARDS: dict[str, str | None] = {
     "d2c": None, "her": "sparse", "hgg": "sparse", "outpace": "intrinsic",
-    "plr": "sparse", "alp_gmm": "sparse",
+    "plr": "sparse", "alp_gmm": "sparse", "vds": "sparse",
 }  # fmt: skip
 # The teachers: one new goal per episode from the goal bounds, scored on its return.
-TEACHER_ALGOS = ("plr", "alp_gmm")
+TEACHER_ALGOS = ("plr", "alp_gmm", "vds")
 
 
 @dataclasses.dataclass(frozen=True)
@@ -342,7 +354,7 @@ class TrainConfig:
     checkpoint_every: int = 50_000
     """Env steps between checkpoints: every ceil(checkpoint_every / E) iterations (and at
     the end, and on a signal). Default: 25 paper iterations of medium_maze (20 x H 100)."""
-    algo: Literal["d2c", "her", "hgg", "outpace", "plr", "alp_gmm"] = "d2c"
+    algo: Literal["d2c", "her", "hgg", "outpace", "plr", "alp_gmm", "vds"] = "d2c"
     """The curriculum and its reward: D2C, or a baseline (HER alone, HGG); `with_algo`."""
     reward: Literal["intrinsic", "sparse"] = "intrinsic"
     """D2C's intrinsic reward p_pseudo(phi(s'); g), or the sparse ablation."""
@@ -361,7 +373,7 @@ class TrainConfig:
     outpace: OutpaceConfig = dataclasses.field(default_factory=OutpaceConfig)
     """OUTPACE's classifier, potential and cost (`--algo outpace`)."""
     teachers: TeachersConfig = dataclasses.field(default_factory=TeachersConfig)
-    """The goal-space teachers (`--algo plr|alp_gmm`)."""
+    """The goal-space teachers (`--algo plr|alp_gmm|vds`)."""
     sweep: tuple[tuple[str, tuple], ...] = ()
     """Hyperparameter arms (issue 13): (dotted field, values) pairs whose Cartesian
     product, times the num_seeds seeds, runs as one program (`d2c_jax.training.sweep`);
@@ -547,13 +559,23 @@ def with_algo(cfg: TrainConfig, algo: str) -> TrainConfig:
             pool_size=max(cfg.num_envs, curriculum.pool_size),
             rematch_every=_iteration_steps(cfg.env, cfg.num_envs, 1),
         )
+    teachers = dataclasses.replace(cfg.teachers, **_VDS_PRESET_SIZES.get(cfg.preset, {}))
     return dataclasses.replace(
         cfg,
         algo=algo,
         reward=ALGO_REWARDS[algo],
         replay=dataclasses.replace(cfg.replay, walk_fraction=0.0),
         curriculum=curriculum,
+        teachers=teachers if algo == "vds" else cfg.teachers,
     )
+
+
+# VDS's ensemble per preset; `paper` keeps the reference's 800 TD updates of 5 members per
+# 10k env steps (about 4x the SAC update's cost at the quick preset's sizes on a CPU).
+_VDS_PRESET_SIZES: dict[str, dict] = {
+    "quick": dict(vds_updates_per_10k=200, vds_batch_size=256),
+    "tiny": dict(vds_members=3, vds_hidden_sizes=(16,), vds_batch_size=32, vds_candidates=64),
+}
 
 
 def _outpace_settings(cfg: TrainConfig) -> TrainConfig:

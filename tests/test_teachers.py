@@ -152,3 +152,38 @@ def test_teacher_trains_and_resumes_like_an_uninterrupted_run(algo, tmp_path):
 def test_teacher_trains_tiny_on_every_env(env_name, algo, tmp_path):
     cfg, _, _ = cli.parse_args(["--env", env_name, "--preset", "tiny", "--algo", algo])
     assert loop.train(cfg, tmp_path / "run", quiet=True) == 0
+
+
+def test_vds_samples_in_proportion_to_disagreement():
+    from d2c_jax.curricula import vds
+
+    std = jnp.array([0.0, 1.0, 3.0, 6.0])
+    picks = np.asarray(vds.sample_by_disagreement(std, 40_000, jax.random.key(0)))
+    freq = np.bincount(picks, minlength=4) / picks.size
+    np.testing.assert_allclose(freq, [0.0, 0.1, 0.3, 0.6], atol=0.01)
+    uniform = np.asarray(vds.sample_by_disagreement(jnp.zeros(4), 40_000, jax.random.key(1)))
+    np.testing.assert_allclose(np.bincount(uniform) / uniform.size, 0.25, atol=0.01)
+
+
+def test_vds_td_loss_is_a_semi_gradient_without_target_network():
+    """The target r + gamma Q(s', a') comes from the same ensemble but carries no gradient."""
+    from d2c_jax.curricula import vds
+
+    net = vds.QEnsemble(3, (8,))
+    k = jax.random.split(jax.random.key(0), 6)
+    feats, nxt = jax.random.normal(k[0], (16, 4)), jax.random.normal(k[1], (16, 4))
+    act, nact = jax.random.normal(k[2], (16, 2)), jax.random.normal(k[3], (16, 2))
+    reward = (jax.random.uniform(k[4], (16,)) < 0.3).astype(jnp.float32)
+    params = net.init(k[5], feats, act)
+    target = reward + 0.9 * net.apply(params, nxt, nact)  # (3, 16), held fixed
+
+    def fixed_target_loss(p):
+        return jnp.mean((net.apply(p, feats, act) - target) ** 2, axis=-1).sum()
+
+    loss, grads = jax.value_and_grad(vds.td_loss, argnums=1)(
+        net, params, feats, act, reward, nxt, nact, 0.9
+    )
+    ref_loss, ref_grads = jax.value_and_grad(fixed_target_loss)(params)
+    np.testing.assert_allclose(loss, ref_loss, rtol=1e-6)
+    for a, b in zip(jax.tree.leaves(grads), jax.tree.leaves(ref_grads), strict=True):
+        np.testing.assert_allclose(a, b, rtol=1e-5, atol=1e-7)

@@ -52,6 +52,7 @@ class CurriculumInputs(NamedTuple):
     desired: jax.Array | None = None  # (n_modes, n, d) the desired examples
     iteration: jax.Array | None = None  # () int32 iterations done before this one
     relabel_prob: jax.Array | None = None  # () float32 HER's relabelling probability
+    policy: Callable | None = None  # the SAC actor: policy(obs, goal, key) -> action (sampled)
     key: jax.Array | None = None  # a PRNG key of the curriculum's own
 
 
@@ -63,6 +64,7 @@ class Curriculum:
     uses_classifier: bool = False  # the classifier ensemble is trained (and may be read)
     needs_pool_obs: bool = False  # `propose` reads inputs.pool_obs
     needs_value: bool = False  # `propose` reads inputs.value_fn
+    needs_start_obs: bool = False  # reads inputs.start_obs (a compiled reset on the host)
 
     def __init__(
         self,
@@ -84,8 +86,10 @@ class Curriculum:
         return None
 
     def propose(self, state, inputs: CurriculumInputs, key) -> tuple[jax.Array, Metrics, object]:
-        """(n_slots, d) goals for the next episodes, their `curriculum/*` metrics and the
-        state (a teacher records what it proposed, to score it in `observe`)."""
+        """(n_slots, d) goals for the next episodes, their metrics (exactly
+        `curriculum.METRIC_KEYS`: they are held between proposals; a curriculum's own
+        metrics come from `observe`) and the state (a teacher records what it proposed,
+        to score it in `observe`)."""
         raise NotImplementedError
 
     def observe(self, state, episodes, inputs: CurriculumInputs) -> tuple[object, Metrics]:
@@ -130,6 +134,7 @@ class MatchingCurriculum(D2CGoalSwitch, Curriculum):
         super().__init__(cfg, env, classifier_net, uses_goal_value)
         self.needs_pool_obs = uses_goal_value
         self.needs_value = uses_goal_value or cfg.curriculum.variant == "value"
+        self.needs_start_obs = cfg.curriculum.variant == "value"
 
     def propose(self, state, inputs: CurriculumInputs, key) -> tuple[jax.Array, Metrics, object]:
         start_value_fn = goal_value_fn = None
@@ -183,9 +188,10 @@ def curriculum_class(cfg: config_lib.TrainConfig) -> type[Curriculum]:
 
         return outpace.OutpaceCurriculum
     if cfg.algo in config_lib.TEACHER_ALGOS:
-        from d2c_jax.curricula import teachers  # here: teachers build on this module
+        from d2c_jax.curricula import teachers, vds  # here: both build on this module
 
-        return {"plr": teachers.PLRTeacher, "alp_gmm": teachers.ALPGMMTeacher}[cfg.algo]
+        return {"plr": teachers.PLRTeacher, "alp_gmm": teachers.ALPGMMTeacher,
+                "vds": vds.VDSTeacher}[cfg.algo]  # fmt: skip
     if cfg.algo == "her":
         return HERDesired
     if cfg.curriculum.variant == "none":

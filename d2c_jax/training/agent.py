@@ -119,12 +119,13 @@ class HostConstants(NamedTuple):
     start_obs: np.ndarray | None  # (obs_dim,) a start observation, only for "+Value" V(s0, g)
 
 
-def host_constants(cfg: config_lib.TrainConfig, env: envs.GoalEnv) -> HostConstants:
+def host_constants(env: envs.GoalEnv, needs_start_obs: bool = False) -> HostConstants:
     """Reads the start state on the host: `env.start_goal` may reset the env and convert
     the result to numpy, which a traced step cannot do (it crashed Sawyer before). The
-    start observation costs a compiled reset, so only the "+Value" ablation gets one."""
+    start observation costs a compiled reset, so only a curriculum that reads it (the
+    "+Value" ablation, VDS) gets one."""
     start_obs = None
-    if cfg.curriculum.variant == "value":
+    if needs_start_obs:
         zero_goal = np.zeros(env.goal_dim, np.float32)
         start = jax.jit(env.reset_with_goal)(jax.random.key(0), zero_goal)
         start_obs = np.asarray(start.obs, np.float32)
@@ -155,12 +156,12 @@ class Agent:
         self.classifier_net = classifier.make_classifier(cfg.classifier, env)
         self.classifier_optimizer = classifier.make_optimizer()
         self.schedule = make_schedule(cfg, env.horizon)
-        self.constants = host_constants(cfg, env)
         # Swept hyperparameters that switch computations on: the program holds them
         # when any run uses them, and the traced value makes them a no-op elsewhere.
         uses_goal_value = any(c.curriculum.goal_value_weight != 0 for c in self.run_configs)
         self.rewards = tuple(sorted({interface.train_reward(c) for c in self.run_configs}))
         self.curriculum = interface.make_curriculum(cfg, env, self.classifier_net, uses_goal_value)
+        self.constants = host_constants(env, self.curriculum.needs_start_obs)
 
     # --- state ----------------------------------------------------------------------
 
@@ -300,6 +301,7 @@ class Agent:
             desired=ts.desired,
             iteration=ts.iteration,
             relabel_prob=ts.hparams.relabel_prob,
+            policy=self.policy(ts.sac),
             key=key,
         )
 
