@@ -93,7 +93,7 @@ _CONFLICTS = [
         ["--algo", "hgg", "--curriculum.goal-value-weight", "1"],
         "--curriculum.goal-value-weight 1.0",
     ),
-    (["--algo", "ppo"], "--algo must be one of d2c, her, hgg, outpace, got 'ppo'"),
+    (["--algo", "ppo"], f"--algo must be one of {', '.join(config.ALGO_NAMES)}, got 'ppo'"),
 ]
 
 
