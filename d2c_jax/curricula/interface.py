@@ -4,17 +4,19 @@ A curriculum is a small object built once on the host for one (config, env); its
 methods are pure, jittable functions of its own state pytree, so every method runs
 inside the one jitted iteration, under vmap over runs:
 
-  init(key) -> state                      its own evolving state (checkpointed with the run)
-  propose(state, inputs, key) -> (goals (K, d), metrics, state)   goals for the next episodes
-  observe(state, episodes, inputs) -> state                   learn from the new episodes
+  init(key) -> state                 its own evolving state (checkpointed with the run)
+  propose(state, inputs, key) -> (goals (K, d), metrics, state)  goals for the next episodes
+  observe(state, episodes, inputs) -> (state, metrics)          learn from the new episodes
 
-and it says what it trains with: `reward` ("intrinsic", D2C's p_pseudo, or "sparse"),
-`next_goal` (the goal switch after success, or None to keep the goal) and
-`uses_classifier` (whether the classifier ensemble is trained at all).
+and it says what it trains with: `reward` ("intrinsic": its own reward, D2C's p_pseudo by
+default (`intrinsic_reward`); or "sparse"), `next_goal` (the goal switch after success,
+or None to keep the goal) and `uses_classifier` (whether D2C's classifier ensemble is
+trained at all).
 
 Implemented here: `MatchingCurriculum` (D2C, Eq. 6-7, and its "+Value" ablation),
 `DesiredExamples` (D2C's "no curriculum" ablation, and HER: episodes conditioned on
-the desired examples) and, in `d2c_jax.curricula.hgg`, `HGGCurriculum`.
+the desired examples); elsewhere in `d2c_jax.curricula`: `hgg`, `outpace`, `teachers`
+(PLR, ALP-GMM) and `vds`. `curriculum_class(cfg)` maps `cfg.algo` to one.
 """
 
 from __future__ import annotations
@@ -44,7 +46,7 @@ class CurriculumInputs(NamedTuple):
     pool_obs: jax.Array | None  # (P, T, o) their observations; None unless `needs_pool_obs`
     pool_valid: jax.Array  # (P,) bool which pool entries hold episodes
     start_goal: jax.Array  # (d,) phi of the start state (host constant)
-    start_obs: jax.Array | None  # (o,) a start observation; only for D2C's "+Value"
+    start_obs: jax.Array | None  # (o,) a start observation; None unless `needs_start_obs`
     classifier_params: dict  # the classifier ensemble's parameters
     value_fn: StateGoalValueFn | None  # the critic's V(s, g); None unless `needs_value`
     hp: curriculum.CurriculumHyperparams  # the traced curriculum hyperparameters

@@ -127,8 +127,8 @@ class OutpaceCurriculum(Curriculum):
         due = (inputs.iteration < self.cfg.outpace.nml_initial_rounds) | (
             inputs.iteration % self.nml_every == 0
         )
-        trained = self._train_nml(state, inputs, k_nml)
-        state = jax.tree.map(lambda a, b: jnp.where(due, a, b), trained, state)
+        # A real branch for one run (under vmap over runs it becomes a select).
+        state = jax.lax.cond(due, lambda: self._train_nml(state, inputs, k_nml), lambda: state)
         return state, {**aim_metrics, "outpace/nml_loss": state.nml_loss}
 
     def _train_aim(self, state: OutpaceState, inputs, key) -> tuple[OutpaceState, Metrics]:
