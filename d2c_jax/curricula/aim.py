@@ -20,6 +20,8 @@ import jax
 import jax.numpy as jnp
 import optax
 
+from d2c_jax.curricula.classifier import normalized_pair
+
 
 class PotentialEnsemble(nn.Module):
     """n members D_k([x, g]) on normalised goal-space pairs: x, g (..., d) -> (n, ...)."""
@@ -31,10 +33,7 @@ class PotentialEnsemble(nn.Module):
 
     @nn.compact
     def __call__(self, x: jax.Array, g: jax.Array) -> jax.Array:
-        low = jnp.asarray(self.goal_low, jnp.float32)
-        high = jnp.asarray(self.goal_high, jnp.float32)
-        centre, half = (high + low) / 2, jnp.maximum((high - low) / 2, 1e-6)
-        h = jnp.concatenate([(x - centre) / half, (g - centre) / half], axis=-1)
+        h = normalized_pair(x, g, self.goal_low, self.goal_high)
         member = nn.vmap(
             _Member,
             variable_axes={"params": 0},

@@ -53,14 +53,20 @@ class Classifier(nn.Module):
     @nn.compact
     def __call__(self, x: jax.Array, g: jax.Array) -> jax.Array:
         """Logits of every head: x (..., d), g (..., d) (broadcast) -> (..., n_heads)."""
-        low = jnp.asarray(self.goal_low, jnp.float32)
-        high = jnp.asarray(self.goal_high, jnp.float32)
-        centre, half = (high + low) / 2.0, (high - low) / 2.0
-        x, g = jnp.broadcast_arrays(jnp.asarray(x, jnp.float32), jnp.asarray(g, jnp.float32))
-        h = jnp.concatenate([(x - centre) / half, (g - centre) / half], axis=-1)
+        h = normalized_pair(x, g, self.goal_low, self.goal_high)
         for width in self.hidden_sizes:
             h = nn.relu(nn.Dense(width)(h))
         return nn.Dense(self.n_heads)(h)
+
+
+def normalized_pair(x, g, goal_low, goal_high) -> jax.Array:
+    """concat((x - centre) / half, (g - centre) / half) with the goal bounds' centre and
+    half-extent: x, g (..., d) (broadcast) -> (..., 2d) float32 (SPEC §3's normalisation)."""
+    low = jnp.asarray(goal_low, jnp.float32)
+    high = jnp.asarray(goal_high, jnp.float32)
+    centre, half = (high + low) / 2.0, (high - low) / 2.0
+    x, g = jnp.broadcast_arrays(jnp.asarray(x, jnp.float32), jnp.asarray(g, jnp.float32))
+    return jnp.concatenate([(x - centre) / half, (g - centre) / half], axis=-1)
 
 
 @struct.dataclass
