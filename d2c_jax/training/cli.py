@@ -1,6 +1,6 @@
 """The `python train.py` command line (ARCHITECTURE.md, "Command line").
 
-    python train.py --env medium_maze [--algo d2c|her|hgg] [--preset quick] [--seed S] [--seeds N]
+    python train.py --env medium_maze [--algo ALGO] [--preset quick] [--seed S] [--seeds N]
         [--total-steps N] [--out DIR] [--resume] [--sac.batch-size 256 ...]
 
 Any config field can be overridden as `--<section>.<field-with-dashes> VALUE`
@@ -101,7 +101,8 @@ def _parser() -> argparse.ArgumentParser:
     parser.add_argument(
         "--algo",
         default=None,
-        help="d2c | her | hgg: D2C or a baseline on the same SAC, HER and pool (default d2c)",
+        help=f"{' | '.join(config_lib.ALGO_NAMES)}: D2C or a baseline on the same SAC, HER "
+        "and pool (default d2c; docs/BASELINES.md)",
     )
     parser.add_argument("--seed", type=int, default=None, help="first seed S")
     parser.add_argument("--seeds", type=int, default=None, help="N seeds S..S+N-1, vmapped")
