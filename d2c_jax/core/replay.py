@@ -173,12 +173,6 @@ def _transitions(state: ReplayState, ep: jax.Array, t: jax.Array) -> Transition:
 
 
 def sample_phase_steps(state: ReplayState, n: int, key: jax.Array, walk: bool):
-    """(n,) slots and (n,) steps uniform over the transitions of one phase (`_phase_steps`):
-    the curriculum phase (walk False) or the random walk (walk True)."""
-    return _phase_steps(state, n, key, walk)
-
-
-def _phase_steps(state: ReplayState, n: int, key: jax.Array, walk: bool):
     """(n,) slots and steps uniform over the transitions of one phase of the episodes.
 
     Curriculum phase: t < walk_start (the goal was the curriculum goal); random walk:
@@ -215,8 +209,8 @@ def sample(
     if n_walk == 0:
         return _transitions(state, *_uniform_steps(state, batch_size, key, state.horizon))
     key_main, key_walk = jax.random.split(key)
-    ep_main, t_main = _phase_steps(state, batch_size - n_walk, key_main, walk=False)
-    ep_walk, t_walk = _phase_steps(state, n_walk, key_walk, walk=True)
+    ep_main, t_main = sample_phase_steps(state, batch_size - n_walk, key_main, walk=False)
+    ep_walk, t_walk = sample_phase_steps(state, n_walk, key_walk, walk=True)
     ep = jnp.concatenate([ep_main, ep_walk])
     return _transitions(state, ep, jnp.concatenate([t_main, t_walk]))
 

@@ -18,16 +18,8 @@ from d2c_jax import config as config_lib
 from d2c_jax.core.types import Metrics
 from d2c_jax.curricula import curriculum, gmm
 from d2c_jax.curricula.interface import Curriculum, CurriculumInputs
-from envs import GoalEnv
 
 # --- shared ----------------------------------------------------------------------------
-
-
-def uniform_goals(env: GoalEnv, key, n: int) -> jax.Array:
-    """n goals uniform over the env's goal bounds (pinned coordinates at their value): (n, d)."""
-    low = jnp.asarray(env.goal_low, jnp.float32)
-    high = jnp.asarray(env.goal_high, jnp.float32)
-    return env.clip_goal(jax.random.uniform(key, (n, low.shape[0]), minval=low, maxval=high))
 
 
 def episode_returns(success: jax.Array, gamma: float) -> jax.Array:
@@ -110,7 +102,9 @@ class PLRTeacher(Teacher):
         picks = jax.random.choice(k_pick, probs.shape[0], (k,), p=probs)
         replay = jax.random.uniform(k_coin, (k,)) < t.plr_replay_rate
         replay = replay & state.filled.any()
-        goals = jnp.where(replay[:, None], state.goals[picks], uniform_goals(self.env, k_new, k))
+        goals = jnp.where(
+            replay[:, None], state.goals[picks], self.env.sample_uniform_goals(k_new, k)
+        )
         state = state.replace(proposed=jnp.where(replay, picks, -1).astype(jnp.int32))
         return goals, self.metrics(goals, k_metrics), state
 
@@ -254,7 +248,9 @@ class ALPGMMTeacher(Teacher):
         )
         random = (jax.random.uniform(k_coin, (k,)) < t.alp_random_ratio) | ~state.fitted
         goals = jnp.where(
-            random[:, None], uniform_goals(self.env, k_uni, k), self.env.clip_goal(draws[:, :-1])
+            random[:, None],
+            self.env.sample_uniform_goals(k_uni, k),
+            self.env.clip_goal(draws[:, :-1]),
         )
         return goals, self.metrics(goals, k_metrics), state
 

@@ -100,7 +100,7 @@ class VDSTeacher(teachers.Teacher):
     def propose(self, state: VDSState, inputs: CurriculumInputs, key):
         k_cand, k_act, k_pick, k_metrics = jax.random.split(key, 4)
         t, k = self.cfg.teachers, self.cfg.curriculum.n_slots
-        cands = teachers.uniform_goals(self.env, k_cand, t.vds_candidates)  # (C, d)
+        cands = self.env.sample_uniform_goals(k_cand, t.vds_candidates)  # (C, d)
         start = jnp.broadcast_to(inputs.start_obs, (cands.shape[0],) + inputs.start_obs.shape)
         action = inputs.policy(start, cands, k_act)
         feats = networks.actor_input(self.env, start, cands)
