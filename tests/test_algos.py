@@ -180,7 +180,7 @@ def test_hgg_proposes_the_optimal_matching(maze):
     values = value_fn(jnp.broadcast_to(pool_obs[:, :1], traj.shape[:2] + (5,)), traj)
     cost, cands = hgg.cost_matrix(
         targets, start, traj, pool_ag[:, 0], values,
-        diameter=hgg.start_to_desired_distance(maze, start), gamma=cfg.sac.gamma,
+        diameter=curriculum.start_to_desired_distance(maze, start), gamma=cfg.sac.gamma,
         init_distance_weight=3.0, lipschitz=5.0,
     )  # fmt: skip
     rows, cols = scipy.optimize.linear_sum_assignment(np.asarray(cost))

@@ -233,7 +233,7 @@ METRIC_KEYS = (
 
 # Cost of a pool trajectory that may not be matched (barely moved): above any real cost,
 # so the auction takes it only when fewer usable trajectories than slots exist.
-UNUSABLE_COST = 1e4
+_UNUSABLE_COST = 1e4
 
 
 def propose(
@@ -304,18 +304,54 @@ def propose(
             pool_obs=pool_obs, goal_value_fn=goal_value_fn,
             goal_value_scale=hp.goal_value_weight * (1.0 - gamma),
         )  # fmt: skip
-        if cfg.pool_min_move > 0:
-            cost = jnp.where(moved(pool_ag, cfg.pool_min_move)[None], cost, UNUSABLE_COST)
-        solved = matching.auction_solve(cost, max_iters=cfg.auction_max_iters)
-        cols, converged = solved.assignment, solved.converged  # (K,) distinct columns
-        rows = jnp.arange(cfg.n_slots)
         noise = _uniform_noise(env, key_noise, slots.shape, hp.goal_noise)  # SPEC §5's eps
-        matched = candidates[rows, cols] + noise
-        full = pool_full(pool_valid)
-        warm = warmup_goals(env, start_goal, cfg.n_slots, key_warm)
-        goals = jnp.where(full, env.clip_goal(matched), warm)
-        matched_cost = jnp.where(full, cost[rows, cols].mean(), 0.0)
+        goals, matched_cost, full, converged = assign_goals(
+            cfg, env, cost, candidates, pool_ag, pool_valid, start_goal, noise, key_warm
+        )
     return goals, proposal_metrics(goals, slots, matched_cost, full, converged)
+
+
+def assign_goals(
+    cfg: CurriculumConfig,
+    env: GoalEnv,
+    cost: jax.Array,
+    candidates: jax.Array,
+    pool_ag: jax.Array,
+    pool_valid: jax.Array,
+    start_goal: jax.Array,
+    noise: jax.Array,
+    key_warm: jax.Array,
+) -> tuple[jax.Array, jax.Array, jax.Array, jax.Array]:
+    """The end every matching curriculum shares (D2C, HGG, OUTPACE): pool trajectories
+    that moved at most `cfg.pool_min_move` get `_UNUSABLE_COST`; the auction gives each
+    slot a distinct trajectory; goal j = its edge's candidate + noise, clipped; until all
+    pool entries hold episodes, the warm-up goals.
+
+    Args:
+      cost: (K, P) edge costs; candidates: (K, P, d) each edge's state.
+      pool_ag: (P, T, d) the pool's achieved goals; pool_valid: (P,) bool.
+      start_goal: (d,) the warm-up centre; noise: (K, d) added to the matched states.
+    Returns:
+      goals (K, d), the mean matched cost () (0 during warm-up), full () bool and the
+      auction's converged () bool.
+    """
+    if cfg.pool_min_move > 0:
+        cost = jnp.where(moved(pool_ag, cfg.pool_min_move)[None], cost, _UNUSABLE_COST)
+    solved = matching.auction_solve(cost, max_iters=cfg.auction_max_iters)
+    rows, cols = jnp.arange(cfg.n_slots), solved.assignment  # (K,) distinct columns
+    full = pool_full(pool_valid)
+    warm = warmup_goals(env, start_goal, cfg.n_slots, key_warm)
+    goals = jnp.where(full, env.clip_goal(candidates[rows, cols] + noise), warm)
+    matched_cost = jnp.where(full, cost[rows, cols].mean(), 0.0)
+    return goals, matched_cost, full, solved.converged
+
+
+def start_to_desired_distance(env: GoalEnv, start_goal: jax.Array) -> jax.Array:
+    """() the largest distance from the start's achieved goal to a mode point: HGG's and
+    OUTPACE's D (both estimate it as the largest initial goal distance over 1000 resets;
+    our start is fixed and the desired examples are the mode points plus noise)."""
+    modes = jnp.asarray(env.goal_points, jnp.float32)
+    return jnp.max(goal_distance(modes, start_goal[None]))
 
 
 def proposal_metrics(goals: jax.Array, slots: jax.Array, matched_cost, full, converged) -> Metrics:

@@ -21,9 +21,9 @@ import jax.numpy as jnp
 
 from d2c_jax import config as config_lib
 from d2c_jax.core.types import Metrics
-from d2c_jax.curricula import curriculum, matching
+from d2c_jax.curricula import curriculum
 from d2c_jax.curricula.interface import Curriculum, CurriculumInputs
-from envs import GoalEnv, goal_distance
+from envs import goal_distance
 
 
 def hgg_value(values: jax.Array, gamma: float) -> jax.Array:
@@ -72,17 +72,6 @@ def cost_matrix(
     return cost, candidates
 
 
-def start_to_desired_distance(env: GoalEnv, start_goal: jax.Array) -> jax.Array:
-    """D: the largest distance from the start's achieved goal to a mode point.
-
-    HGG estimates it as the largest initial goal distance over 1000 resets; our start is
-    fixed and the desired examples are the mode points plus noise, so the mode points'
-    largest distance is that estimate without the noise.
-    """
-    modes = jnp.asarray(env.goal_points, jnp.float32)
-    return jnp.max(goal_distance(modes, start_goal[None]))
-
-
 class HGGCurriculum(Curriculum):
     """HGG's goal generation on D2C's trajectory pool and auction (`--algo hgg`)."""
 
@@ -104,19 +93,15 @@ class HGGCurriculum(Curriculum):
         values = inputs.value_fn(jnp.broadcast_to(first_obs, obs_shape), traj)  # (P, T')
         cost, candidates = cost_matrix(
             targets, inputs.start_goal, traj, inputs.pool_ag[:, 0], values,
-            diameter=start_to_desired_distance(env, inputs.start_goal),
+            diameter=curriculum.start_to_desired_distance(env, inputs.start_goal),
             gamma=self.cfg.sac.gamma,
             init_distance_weight=self.cfg.hgg.init_distance_weight,
             lipschitz=self.cfg.hgg.lipschitz,
         )  # fmt: skip
-        if cur.pool_min_move > 0:
-            usable = curriculum.moved(inputs.pool_ag, cur.pool_min_move)
-            cost = jnp.where(usable[None], cost, curriculum.UNUSABLE_COST)
-        solved = matching.auction_solve(cost, max_iters=cur.auction_max_iters)
-        rows = jnp.arange(cur.n_slots)
-        full = curriculum.pool_full(inputs.pool_valid)
-        warm = curriculum.warmup_goals(env, inputs.start_goal, cur.n_slots, key_warm)
-        goals = jnp.where(full, env.clip_goal(candidates[rows, solved.assignment]), warm)
-        matched_cost = jnp.where(full, cost[rows, solved.assignment].mean(), 0.0)
-        metrics = curriculum.proposal_metrics(goals, targets, matched_cost, full, solved.converged)
+        no_noise = jnp.zeros_like(targets)  # HGG adds noise on its Fetch tasks only
+        goals, matched_cost, full, converged = curriculum.assign_goals(
+            cur, env, cost, candidates, inputs.pool_ag, inputs.pool_valid, inputs.start_goal,
+            no_noise, key_warm,
+        )  # fmt: skip
+        metrics = curriculum.proposal_metrics(goals, targets, matched_cost, full, converged)
         return goals, metrics, state

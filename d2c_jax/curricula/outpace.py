@@ -27,7 +27,7 @@ from flax import struct
 
 from d2c_jax.core import her, replay
 from d2c_jax.core.types import Metrics, RewardFn
-from d2c_jax.curricula import aim, curriculum, matching, meta_nml
+from d2c_jax.curricula import aim, curriculum, meta_nml
 from d2c_jax.curricula.interface import Curriculum, CurriculumInputs, GoalSwitch
 
 # The log of p_NML is clamped as torch's BCELoss clamps it (OUTPACE computes -log p so).
@@ -198,8 +198,7 @@ class OutpaceCurriculum(Curriculum):
         scaled = 2.0 * ((value - lo) / (hi - lo + 1e-5) - 0.5)
         p = self.nml_probabilities(state, inputs, traj.reshape(-1, traj.shape[-1]), key)
         log_p = jnp.maximum(jnp.log(p), _MIN_LOG).reshape(traj.shape[:2])
-        modes = jnp.asarray(self.env.goal_points, jnp.float32)
-        d_max = jnp.max(jnp.linalg.norm(modes - inputs.start_goal, axis=-1))
+        d_max = curriculum.start_to_desired_distance(self.env, inputs.start_goal)
         return -log_p - scaled * d_max * (1.0 - gamma) / o.cost_lipschitz
 
     def propose(self, state: OutpaceState, inputs: CurriculumInputs, key):
@@ -210,19 +209,17 @@ class OutpaceCurriculum(Curriculum):
         cost_t = self.cost(state, inputs, traj, k_cost)  # (P, T')
         best = jnp.argmin(cost_t, axis=-1)
         pool_index = jnp.arange(traj.shape[0])
-        per_traj = cost_t[pool_index, best]  # (P,)
-        usable = inputs.pool_valid & curriculum.moved(inputs.pool_ag, cur.pool_min_move)
-        per_traj = jnp.where(usable, per_traj, curriculum.UNUSABLE_COST)
-        cost = jnp.broadcast_to(per_traj, (cur.n_slots,) + per_traj.shape)  # same for all j
-        solved = matching.auction_solve(cost, max_iters=cur.auction_max_iters)
-        candidates = traj[pool_index, best][solved.assignment]  # (K, d)
+        # The cost does not depend on the slot: every row is the trajectories' cost.
+        shape = (cur.n_slots,) + best.shape
+        cost = jnp.broadcast_to(cost_t[pool_index, best], shape)  # (K, P)
+        candidates = jnp.broadcast_to(traj[pool_index, best], shape + traj.shape[-1:])
         mask = jnp.asarray(env.goal_noise_mask, jnp.float32)
-        noise = jax.random.normal(k_noise, candidates.shape) * self.cfg.outpace.goal_noise_std
-        full = curriculum.pool_full(inputs.pool_valid)
-        warm = curriculum.warmup_goals(env, inputs.start_goal, cur.n_slots, k_warm)
-        goals = jnp.where(full, env.clip_goal(candidates + noise * mask), warm)
-        matched = jnp.where(full, per_traj[solved.assignment].mean(), 0.0)
-        metrics = curriculum.proposal_metrics(goals, slots, matched, full, solved.converged)
+        noise = jax.random.normal(k_noise, slots.shape) * self.cfg.outpace.goal_noise_std * mask
+        goals, matched, full, converged = curriculum.assign_goals(
+            cur, env, cost, candidates, inputs.pool_ag, inputs.pool_valid, inputs.start_goal,
+            noise, k_warm,
+        )  # fmt: skip
+        metrics = curriculum.proposal_metrics(goals, slots, matched, full, converged)
         return goals, metrics, state
 
     def next_goal(self, state: OutpaceState, inputs: CurriculumInputs) -> GoalSwitch:
