@@ -17,7 +17,7 @@ The actor is a tanh-squashed Gaussian. Two details keep it numerically healthy (
 from __future__ import annotations
 
 import math
-from typing import NamedTuple
+from typing import Callable, NamedTuple
 
 import flax.linen as nn
 import jax
@@ -30,16 +30,42 @@ N_CRITICS = 2
 
 
 class MLP(nn.Module):
-    """ReLU MLP with a linear output layer."""
+    """MLP with a linear output layer: ReLU hidden units and flax's default (LeCun
+    normal) weights unless `activation` and `kernel_init` say otherwise."""
 
     hidden_sizes: tuple[int, ...]
     out_dim: int
+    activation: Callable[[jax.Array], jax.Array] = nn.relu
+    kernel_init: Callable = nn.initializers.lecun_normal()
 
     @nn.compact
     def __call__(self, x: jax.Array) -> jax.Array:
         for width in self.hidden_sizes:
-            x = nn.relu(nn.Dense(width)(x))
-        return nn.Dense(self.out_dim)(x)
+            x = self.activation(nn.Dense(width, kernel_init=self.kernel_init)(x))
+        return nn.Dense(self.out_dim, kernel_init=self.kernel_init)(x)
+
+
+class ScalarEnsemble(nn.Module):
+    """`n_members` independent scalar MLPs with stacked parameters (leading axis n), run
+    as one batched matmul: x (..., f) -> (n_members, ...). The curricula's ensembles
+    (OUTPACE's AIM potential, VDS's Q-functions) are this."""
+
+    n_members: int
+    hidden_sizes: tuple[int, ...]
+    activation: Callable[[jax.Array], jax.Array] = nn.relu
+    kernel_init: Callable = nn.initializers.lecun_normal()
+
+    @nn.compact
+    def __call__(self, x: jax.Array) -> jax.Array:
+        stacked = nn.vmap(
+            MLP,
+            variable_axes={"params": 0},
+            split_rngs={"params": True},
+            in_axes=None,
+            axis_size=self.n_members,
+        )
+        mlp = stacked(self.hidden_sizes, 1, self.activation, self.kernel_init, name="members")
+        return mlp(x)[..., 0]
 
 
 class Actor(nn.Module):

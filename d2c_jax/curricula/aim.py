@@ -20,6 +20,7 @@ import jax
 import jax.numpy as jnp
 import optax
 
+from d2c_jax.core import networks
 from d2c_jax.curricula.classifier import normalized_pair
 
 
@@ -34,25 +35,10 @@ class PotentialEnsemble(nn.Module):
     @nn.compact
     def __call__(self, x: jax.Array, g: jax.Array) -> jax.Array:
         h = normalized_pair(x, g, self.goal_low, self.goal_high)
-        member = nn.vmap(
-            _Member,
-            variable_axes={"params": 0},
-            split_rngs={"params": True},
-            in_axes=None,
-            axis_size=self.n_members,
+        members = networks.ScalarEnsemble(
+            self.n_members, self.hidden_sizes, nn.tanh, nn.initializers.orthogonal()
         )
-        return member(self.hidden_sizes)(h)
-
-
-class _Member(nn.Module):
-    hidden_sizes: tuple[int, ...]
-
-    @nn.compact
-    def __call__(self, h: jax.Array) -> jax.Array:
-        init = nn.initializers.orthogonal()
-        for width in self.hidden_sizes:
-            h = nn.tanh(nn.Dense(width, kernel_init=init)(h))
-        return nn.Dense(1, kernel_init=init)(h)[..., 0]
+        return members(h)
 
 
 def potential(net: PotentialEnsemble, params, x: jax.Array, g: jax.Array) -> jax.Array:

@@ -25,6 +25,8 @@ import jax
 import jax.numpy as jnp
 import optax
 
+from d2c_jax.core import networks
+
 # Distance weights exp(-DISTANCE_DECAY * ||x_q - x_j|| / threshold) of context and test
 # points around a query (outpace_official meta-nml/maml/metadatasets/nml.py, the
 # `dist_weight_thresh` weighting: 2.3 makes the weight 0.1 at one threshold).
@@ -49,10 +51,7 @@ class Classifier(nn.Module):
 
     @nn.compact
     def __call__(self, x: jax.Array) -> jax.Array:
-        h = x * self.input_scale
-        for width in self.hidden_sizes:
-            h = nn.relu(nn.Dense(width)(h))
-        return nn.Dense(2)(h)
+        return networks.MLP(self.hidden_sizes, 2)(x * self.input_scale)
 
 
 def weighted_cross_entropy(net, params, x, y, w) -> jax.Array:

@@ -29,24 +29,8 @@ class QEnsemble(nn.Module):
 
     @nn.compact
     def __call__(self, features: jax.Array, action: jax.Array) -> jax.Array:
-        member = nn.vmap(
-            _QMember,
-            variable_axes={"params": 0},
-            split_rngs={"params": True},
-            in_axes=None,
-            axis_size=self.n_members,
-        )
-        return member(self.hidden_sizes)(jnp.concatenate([features, action], axis=-1))
-
-
-class _QMember(nn.Module):
-    hidden_sizes: tuple[int, ...]
-
-    @nn.compact
-    def __call__(self, h: jax.Array) -> jax.Array:
-        for width in self.hidden_sizes:
-            h = nn.tanh(nn.Dense(width)(h))
-        return nn.Dense(1)(h)[..., 0]
+        members = networks.ScalarEnsemble(self.n_members, self.hidden_sizes, nn.tanh)
+        return members(jnp.concatenate([features, action], axis=-1))
 
 
 @struct.dataclass
