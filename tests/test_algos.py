@@ -192,7 +192,7 @@ def test_hgg_proposes_the_optimal_matching(maze):
 
 def test_hgg_resume_equals_uninterrupted(tmp_path):
     # A matching every iteration, so resumed iterations rematch on a restored pool.
-    extra = ("--curriculum.rematch-every", "400", "--total-steps", "1200")
+    extra = ("--curriculum.rematch-every", "400", "--total-steps", "800")
     full = strip_time(_train_tiny("medium_maze", "hgg", tmp_path / "full", *extra))
     assert any(r["curriculum/pool_full"] == 1.0 for r in full)
     path = tmp_path / "resumed"
@@ -228,6 +228,7 @@ def test_summary_reads_targets_and_modes_per_seed():
     assert "| d2c | 2 | 30 | 0.65 ± 0.15 | 0.85 ± 0.05 |" in table
 
 
+@pytest.mark.slow  # the training it runs is loop.train's, tested above; this is the command
 def test_compare_trains_each_algo_and_writes_table_and_figure(tmp_path):
     from benchmarks import compare
 

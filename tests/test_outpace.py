@@ -121,7 +121,7 @@ def _train(out, *extra):
 
 
 def test_outpace_trains_matches_and_resumes_like_an_uninterrupted_run(tmp_path):
-    extra = ("--curriculum.rematch-every", "400", "--total-steps", "1200")
+    extra = ("--curriculum.rematch-every", "400", "--total-steps", "800")
     full = _train(tmp_path / "full", *extra)
     assert any(r["curriculum/pool_full"] == 1.0 for r in full)
     for key in ("outpace/aim_loss", "outpace/nml_loss", "sac/reward_mean", "eval/success"):
