@@ -271,7 +271,7 @@ class OutpaceConfig:
 
 @dataclasses.dataclass(frozen=True)
 class TeachersConfig:
-    """The goal-space teachers of psclklnk/currot (`--algo plr|alp_gmm|vds`), with the defaults
+    """The goal-space teachers of psclklnk/currot (`--algo currot|plr|alp_gmm|vds`), with the defaults
     of its maze ("sparse goal reaching") experiment (docs/BASELINES.md)."""
 
     plr_replay_rate: float = 0.55
@@ -308,22 +308,33 @@ class TeachersConfig:
     """VDS: transitions per TD update and member."""
     vds_candidates: int = 1000
     """VDS: uniform candidate goals scored by the ensemble's disagreement."""
+    currot_particles: int = 500
+    """CURROT: particles representing the curriculum (and the success buffer's size)."""
+    currot_episodes_per_update: int = 50
+    """CURROT: episodes between particle updates (rounded up to whole iterations)."""
+    currot_delta: float = 0.8
+    """CURROT: the performance threshold, a success rate (converted to the critic's scale)."""
+    currot_trust_region: float = 0.0481
+    """CURROT: the most a particle moves per update, as a fraction of the goal box's
+    diagonal (the reference's sqrt(1.5) in its 18 x 18 maze)."""
+    currot_candidates: int = 100
+    """CURROT: candidate moves per particle and update."""
 
 
 # --- the whole run ---------------------------------------------------------------
 
 # The curricula `--algo` selects (d2c_jax.curricula.interface): D2C, and the paper's
 # baselines built on the same SAC, HER, trajectory pool and auction.
-ALGO_NAMES = ("d2c", "her", "hgg", "outpace", "plr", "alp_gmm", "vds")
+ALGO_NAMES = ("d2c", "her", "hgg", "outpace", "currot", "plr", "alp_gmm", "vds")
 # The reward each algorithm trains with; None: `TrainConfig.reward` decides (D2C's
 # intrinsic reward or its sparse ablation). Paper appendix A.1: every baseline but
 # OUTPACE is trained with the sparse reward; OUTPACE's "intrinsic" reward is its own (AIM).
 ALGO_REWARDS: dict[str, str | None] = {
     "d2c": None, "her": "sparse", "hgg": "sparse", "outpace": "intrinsic",
-    "plr": "sparse", "alp_gmm": "sparse", "vds": "sparse",
+    "currot": "sparse", "plr": "sparse", "alp_gmm": "sparse", "vds": "sparse",
 }  # fmt: skip
 # The teachers: one new goal per episode from the goal bounds, scored on its return.
-TEACHER_ALGOS = ("plr", "alp_gmm", "vds")
+TEACHER_ALGOS = ("currot", "plr", "alp_gmm", "vds")
 
 
 @dataclasses.dataclass(frozen=True)
@@ -354,7 +365,7 @@ class TrainConfig:
     checkpoint_every: int = 50_000
     """Env steps between checkpoints: every ceil(checkpoint_every / E) iterations (and at
     the end, and on a signal). Default: 25 paper iterations of medium_maze (20 x H 100)."""
-    algo: Literal["d2c", "her", "hgg", "outpace", "plr", "alp_gmm", "vds"] = "d2c"
+    algo: Literal["d2c", "her", "hgg", "outpace", "currot", "plr", "alp_gmm", "vds"] = "d2c"
     """The curriculum and its reward: D2C, or a baseline (HER alone, HGG); `with_algo`."""
     reward: Literal["intrinsic", "sparse"] = "intrinsic"
     """D2C's intrinsic reward p_pseudo(phi(s'); g), or the sparse ablation."""
@@ -373,7 +384,7 @@ class TrainConfig:
     outpace: OutpaceConfig = dataclasses.field(default_factory=OutpaceConfig)
     """OUTPACE's classifier, potential and cost (`--algo outpace`)."""
     teachers: TeachersConfig = dataclasses.field(default_factory=TeachersConfig)
-    """The goal-space teachers (`--algo plr|alp_gmm|vds`)."""
+    """The goal-space teachers (`--algo currot|plr|alp_gmm|vds`)."""
     sweep: tuple[tuple[str, tuple], ...] = ()
     """Hyperparameter arms (issue 13): (dotted field, values) pairs whose Cartesian
     product, times the num_seeds seeds, runs as one program (`d2c_jax.training.sweep`);
@@ -559,22 +570,29 @@ def with_algo(cfg: TrainConfig, algo: str) -> TrainConfig:
             pool_size=max(cfg.num_envs, curriculum.pool_size),
             rematch_every=_iteration_steps(cfg.env, cfg.num_envs, 1),
         )
-    teachers = dataclasses.replace(cfg.teachers, **_VDS_PRESET_SIZES.get(cfg.preset, {}))
+    sizes = _TEACHER_PRESET_SIZES.get(algo, {}).get(cfg.preset, {})
     return dataclasses.replace(
         cfg,
         algo=algo,
         reward=ALGO_REWARDS[algo],
         replay=dataclasses.replace(cfg.replay, walk_fraction=0.0),
         curriculum=curriculum,
-        teachers=teachers if algo == "vds" else cfg.teachers,
+        teachers=dataclasses.replace(cfg.teachers, **sizes),
     )
 
 
-# VDS's ensemble per preset; `paper` keeps the reference's 800 TD updates of 5 members per
-# 10k env steps (about 4x the SAC update's cost at the quick preset's sizes on a CPU).
-_VDS_PRESET_SIZES: dict[str, dict] = {
-    "quick": dict(vds_updates_per_10k=200, vds_batch_size=256),
-    "tiny": dict(vds_members=3, vds_hidden_sizes=(16,), vds_batch_size=32, vds_candidates=64),
+# Teacher sizes per algo and preset; `paper` keeps the reference's. VDS: its 800 TD
+# updates of 5 members per 10k env steps are about 4x the SAC update's cost at the quick
+# preset's sizes on a CPU. CURROT: `tiny` only shrinks it for tests.
+_TEACHER_PRESET_SIZES: dict[str, dict[str, dict]] = {
+    "vds": {
+        "quick": dict(vds_updates_per_10k=200, vds_batch_size=256),
+        "tiny": dict(vds_members=3, vds_hidden_sizes=(16,), vds_batch_size=32,
+                     vds_candidates=64),
+    },  # fmt: skip
+    "currot": {
+        "tiny": dict(currot_particles=16, currot_episodes_per_update=4, currot_candidates=8),
+    },
 }
 
 

@@ -16,7 +16,7 @@ trained at all).
 Implemented here: `MatchingCurriculum` (D2C, Eq. 6-7, and its "+Value" ablation),
 `DesiredExamples` (D2C's "no curriculum" ablation, and HER: episodes conditioned on
 the desired examples); elsewhere in `d2c_jax.curricula`: `hgg`, `outpace`, `teachers`
-(PLR, ALP-GMM) and `vds`. `curriculum_class(cfg)` maps `cfg.algo` to one.
+(PLR, ALP-GMM), `vds` and `currot`. `curriculum_class(cfg)` maps `cfg.algo` to one.
 """
 
 from __future__ import annotations
@@ -190,10 +190,10 @@ def curriculum_class(cfg: config_lib.TrainConfig) -> type[Curriculum]:
 
         return outpace.OutpaceCurriculum
     if cfg.algo in config_lib.TEACHER_ALGOS:
-        from d2c_jax.curricula import teachers, vds  # here: both build on this module
+        from d2c_jax.curricula import currot, teachers, vds  # here: they build on this module
 
-        return {"plr": teachers.PLRTeacher, "alp_gmm": teachers.ALPGMMTeacher,
-                "vds": vds.VDSTeacher}[cfg.algo]  # fmt: skip
+        return {"currot": currot.CurrotTeacher, "plr": teachers.PLRTeacher,
+                "alp_gmm": teachers.ALPGMMTeacher, "vds": vds.VDSTeacher}[cfg.algo]  # fmt: skip
     if cfg.algo == "her":
         return HERDesired
     if cfg.curriculum.variant == "none":

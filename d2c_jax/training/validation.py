@@ -227,6 +227,9 @@ _RANGE_EXCEPTIONS: dict[str, Range] = {
     "teachers.plr_replay_rate": Interval(0, 1),
     "teachers.plr_rho": Interval(0, 1),
     "teachers.alp_random_ratio": Interval(0, 1),
+    # CURROT: a success rate, and a fraction of the box (0 would never move).
+    "teachers.currot_delta": Interval(0, 1),
+    "teachers.currot_trust_region": Interval(0, 1, lo_open=True),
     # PLR's rank temperature divides.
     "teachers.plr_beta": Interval(0, lo_open=True),
     # OUTPACE divides by L and by (std + offset).

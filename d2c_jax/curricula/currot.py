@@ -1,0 +1,370 @@
+"""CURROT (Klink et al. 2022) as a teacher over goals (`--algo currot`, issue 20).
+
+The curriculum is a set of N particles in the goal space. Each episode trains on a
+particle drawn uniformly (plus a tiny jitter). Every `currot_episodes_per_update`
+episodes the particles move toward the target distribution, the desired examples, by
+a constrained optimal-transport step: each particle heads for the target its exact
+optimal-transport assignment gives it, but moves at most a trust-region radius, and
+only to a point whose estimated performance stays above the threshold delta.
+
+We follow psclklnk/currot main@4147270 (`deep_sprl/teachers/spl/currot.py` and
+`wasserstein_interpolation.py`; docs/BASELINES.md cites each formula and constant),
+with three departures (docs/DEVIATIONS.md, "CURROT"):
+- performance is our critic's V(s0, g) (issue 20), not a Nadaraya-Watson regression of
+  episode returns, so delta is converted to the value scale (`value_threshold`);
+- the transport plan is the exact assignment (our auction), not the reference's
+  sliced-Wasserstein estimate of it (its icml branch: Sinkhorn at blur 0.01, near exact);
+- lengths are expressed as fractions of the goal box (the reference's maze spans 18
+  units; ours 28-36), so the trust region and noise scales mean the same everywhere.
+
+The success buffer keeps the reference's two phases: before delta is reached it holds
+the episodes with the best returns (success indicators, the reference's maze return);
+after, the successes that best match the target by optimal transport.
+"""
+
+from __future__ import annotations
+
+import math
+
+import jax
+import jax.numpy as jnp
+from flax import struct
+
+from d2c_jax.core.types import Metrics
+from d2c_jax.curricula import curriculum, matching, teachers
+from d2c_jax.curricula.interface import CurriculumInputs
+
+# The reference's maze spans [-9, 9]^2: its trust region sqrt(eps) = sqrt(1.5) is this
+# fraction of the goal box's diagonal (c:21, me:49); `TeachersConfig.currot_trust_region`.
+REFERENCE_BOX_WIDTH = 18.0
+# Per-episode jitter U(-nu, nu), nu = 1e-3 (ub - lb) (c:71-73, 284).
+_JITTER_FRACTION = 1e-3
+# The least std of a success sample, 0.005 eps in the reference's units (c:90-91).
+_MIN_STD_FRACTION = 0.005 * 1.5 / REFERENCE_BOX_WIDTH
+# A failed sample's std reaches (ub - lb) / 4 (c:129-130).
+_MAX_STD_FRACTION = 0.25
+# Out-of-bounds success samples are redrawn up to this many times, then clipped (c:157-168).
+_NOISE_TRIES = 10
+
+
+def value_threshold(delta: float, gamma: float, horizon: int) -> float:
+    """delta (a success rate, the reference's maze scale) on our critic's value scale.
+
+    The reference's maze return is the success indicator, so delta = 0.8 asks that 80% of
+    the episodes on a goal succeed. Our sparse reward is 1 at every step the goal is
+    held, and the critic bootstraps past the time limit, so a goal reached at step t and
+    held is worth gamma^t / (1 - gamma). A success anywhere within the horizon H is worth
+    at least gamma^H / (1 - gamma); a goal reached with probability p >= delta therefore
+    has V >= delta gamma^H / (1 - gamma), the threshold. (gamma = 0.99, H = 100: 29.3 of
+    the value range [0, 100].)"""
+    return delta * gamma**horizon / (1.0 - gamma)
+
+
+def squared_distances(a: jax.Array, b: jax.Array) -> jax.Array:
+    """||a_i - b_j||^2: (n, d), (m, d) -> (n, m)."""
+    return jnp.sum((a[:, None, :] - b[None, :, :]) ** 2, axis=-1)
+
+
+def transport_targets(particles: jax.Array, targets: jax.Array) -> jax.Array:
+    """Each particle's partner in the optimal transport plan between two equal-size
+    uniform point sets (an assignment minimising the total squared distance, the W2
+    plan): (N, d), (N, d) -> (N, d), targets[sigma(i)]."""
+    return targets[matching.auction(squared_distances(particles, targets))]
+
+
+# --- the success buffer (c:189-278) ---------------------------------------------------
+
+
+@struct.dataclass
+class SuccessBuffer:
+    """Up to N (goal, return) pairs, ascending by return in [0, count)."""
+
+    goals: jax.Array  # (N, d)
+    returns: jax.Array  # (N,) float32; -inf beyond count
+    stamps: jax.Array  # (N,) int32 the update that inserted each entry
+    count: jax.Array  # () int32
+    delta_reached: jax.Array  # () bool more than half the buffer met delta (phase B)
+    min_return: jax.Array  # () float32 the first batch's least return (read_update's scale)
+
+
+def empty_buffer(n: int, d: int) -> SuccessBuffer:
+    """The reference's initial buffer: one dummy entry of return -inf (c:95-96)."""
+    return SuccessBuffer(
+        goals=jnp.zeros((n, d), jnp.float32),
+        returns=jnp.full((n,), -jnp.inf, jnp.float32),
+        stamps=jnp.zeros((n,), jnp.int32),
+        count=jnp.ones((), jnp.int32),
+        delta_reached=jnp.zeros((), bool),
+        min_return=jnp.full((), jnp.inf, jnp.float32),
+    )
+
+
+def select_entries(goals, returns, stamps, keep, priority, n: int, buf: SuccessBuffer):
+    """The buffer holding the n highest-`priority` entries among `keep`, stored ascending
+    by return. goals (m, d), returns, stamps, keep, priority (m,), m >= n."""
+    top = jnp.lexsort((-priority, ~keep))[:n]  # kept entries first, best priority first
+    valid = keep[top]
+    order = top[jnp.lexsort((returns[top], ~valid))]  # valid first, ascending return
+    valid = keep[order]
+    return buf.replace(
+        goals=goals[order],
+        returns=jnp.where(valid, returns[order], -jnp.inf),
+        stamps=stamps[order],
+        count=valid.sum().astype(jnp.int32),
+    )
+
+
+def update_buffer(buf: SuccessBuffer, goals, returns, targets, delta: float, stamp):
+    """The buffer after a batch of episodes (goals (m, d), returns (m,)); `targets` (N, d)
+    are fresh target samples for phase B's transport selection.
+
+    Phase A (delta not reached, c:194-229): episodes at or above the buffer's median
+    enter, as many of the lowest entries leave (at most half the buffer plus one), the
+    best N stay; delta is reached once the median before the update exceeds it.
+    Phase B (c:231-278): successes (return >= delta) enter. When the buffer is full and
+    holds only successes, the N entries of buffer and successes that best transport onto
+    the targets stay; otherwise the new successes replace the lowest-return entries and
+    the oldest entries leave past N."""
+    n, m = buf.returns.shape[0], returns.shape[0]
+    slot = jnp.arange(n)
+    valid = slot < buf.count
+    all_goals = jnp.concatenate([buf.goals, goals])
+    all_returns = jnp.concatenate([buf.returns, returns])
+    all_stamps = jnp.concatenate([buf.stamps, jnp.full((m,), stamp, jnp.int32)])
+    first = jnp.isinf(buf.min_return)  # the first batch sets the scale (c:113-114)
+    buf = buf.replace(min_return=jnp.where(first, returns.min(), buf.min_return))
+
+    def phase_a(buf: SuccessBuffer) -> SuccessBuffer:
+        median = buf.returns[buf.count // 2]
+        accept = returns >= median
+        dropped = jnp.minimum(buf.count // 2 + 1, accept.sum())
+        keep = jnp.concatenate([valid & (slot >= dropped), accept])
+        out = select_entries(all_goals, all_returns, all_stamps, keep, all_returns, n, buf)
+        return out.replace(delta_reached=median > delta)
+
+    def phase_b(buf: SuccessBuffer) -> SuccessBuffer:
+        success = returns >= delta
+        low = valid & (buf.returns < delta)
+        sources_ok = jnp.concatenate([valid, success])
+
+        def by_transport(_):
+            # Targets bid for sources; sources other than buffer and successes are barred.
+            dist = squared_distances(targets, all_goals)
+            barred = jnp.max(dist) + 1.0
+            kept_source = matching.auction(jnp.where(sources_ok[None], dist, barred))
+            keep = jnp.zeros((n + m,), bool).at[kept_source].set(True) & sources_ok
+            return select_entries(all_goals, all_returns, all_stamps, keep, all_returns, n, buf)
+
+        def by_replacement(_):
+            # The lowest entries are the first ones; min(#successes, #low) of them leave.
+            removed = slot < jnp.minimum(success.sum(), low.sum())
+            keep = jnp.concatenate([valid & ~removed, success])
+            return select_entries(all_goals, all_returns, all_stamps, keep, all_stamps, n, buf)
+
+        use_transport = success.any() & ~low.any() & (buf.count >= n)
+        return jax.lax.cond(use_transport, by_transport, by_replacement, None)
+
+    return jax.lax.cond(buf.delta_reached, phase_b, phase_a, buf)
+
+
+def success_samples(buf: SuccessBuffer, n: int, delta: float, low, high, key) -> jax.Array:
+    """N noisy samples around the buffer's entries (read_update, c:127-168): (n, d).
+
+    Phase A draws from the upper half of the buffer with p_j proportional to R_j minus the
+    return just below that half (uniformly when all are equal); phase B takes every entry
+    and fills up to n uniformly. Entry j's noise std is the floor plus (delta - R_j)^+ /
+    (delta - min_return) of a quarter of the box: failures spread, successes stay put."""
+    k_pick, k_fill, k_noise = jax.random.split(key, 3)
+    size = buf.returns.shape[0]
+    slot = jnp.arange(size)
+    half = buf.count // 2
+    upper = (slot >= half) & (slot < buf.count)
+    weight = jnp.where(upper, buf.returns - buf.returns[jnp.maximum(half - 1, 0)], 0.0)
+    weight = jnp.where(weight.sum() > 0, weight, upper.astype(jnp.float32))
+    phase_a = jax.random.choice(k_pick, size, (n,), p=weight / weight.sum())
+    fill = jax.random.randint(k_fill, (n,), 0, jnp.maximum(buf.count, 1))
+    rows = jnp.arange(n)
+    phase_b = jnp.where(rows < buf.count, jnp.minimum(rows, size - 1), fill)
+    index = jnp.where(buf.delta_reached, phase_b, phase_a)
+
+    width = high - low
+    shortfall = jnp.clip(delta - buf.returns[index], 0.0, None)
+    scale = jnp.maximum(delta - buf.min_return, 1e-6)
+    std = (_MIN_STD_FRACTION + shortfall[:, None] / scale * _MAX_STD_FRACTION) * width
+    centres = buf.goals[index]
+    tries = centres + std * jax.random.normal(k_noise, (_NOISE_TRIES,) + centres.shape)
+    inside = jnp.all((tries >= low) & (tries <= high), axis=-1)  # (tries, n)
+    first = jnp.where(inside.any(0), jnp.argmax(inside, axis=0), _NOISE_TRIES - 1)
+    return jnp.clip(tries[first, rows], low, high)
+
+
+# --- the particle step (wasserstein_interpolation.py:19-116) ---------------------------
+
+
+def ensure_successful(particles, particle_value, samples, sample_value, threshold):
+    """Particles below the threshold move to success samples, by the assignment of least
+    total squared distance (wi:56-73); only samples above the threshold are eligible when
+    there are enough of them. Returns (particles (N, d), reached (N,) bool: the particle
+    sits on a point above the threshold)."""
+    failing = particle_value < threshold
+    eligible = sample_value >= threshold
+    restrict = eligible.sum() >= failing.sum()
+    dist = squared_distances(particles, samples)
+    barred = jnp.where(restrict & ~eligible, jnp.max(dist) + 1.0, 0.0)
+    # Rows that do not fail cost the same everywhere: they take what the failing rows
+    # leave, so the square problem solves the failing rows' rectangular one.
+    assign = matching.auction(jnp.where(failing[:, None], dist + barred[None], 0.0))
+    moved = jnp.where(failing[:, None], samples[assign], particles)
+    reached = jnp.where(failing, eligible[assign], True)
+    return moved, reached
+
+
+def ball_offsets(key, n: int, d: int) -> jax.Array:
+    """n points uniform in the unit d-ball (Gaussian directions, radius U^(1/d)): (n, d)."""
+    k_dir, k_rad = jax.random.split(key)
+    direction = jax.random.normal(k_dir, (n, d))
+    direction = direction / jnp.linalg.norm(direction, axis=-1, keepdims=True)
+    return direction * jax.random.uniform(k_rad, (n, 1)) ** (1.0 / d)
+
+
+def candidates(particles, targets, reached, radius, low, high, key, n: int) -> jax.Array:
+    """n candidate moves per particle (wi:19-41): the same unit-ball offsets for all,
+    reflected into the half-ball facing the target for particles that reached the
+    threshold, scaled by min(radius, distance to target), clipped. -> (N, n, d)."""
+    offsets = ball_offsets(key, n, particles.shape[-1])  # (n, d)
+    step = targets - particles  # (N, d)
+    length2 = jnp.maximum(jnp.sum(step**2, axis=-1, keepdims=True), 1e-12)  # (N, 1)
+    along = offsets @ step.T  # (n, N)
+    backward = (along < 0) & reached[None]
+    reflected = offsets[:, None] - 2.0 * (along / length2.T)[..., None] * step[None]
+    moves = jnp.where(backward[..., None], reflected, offsets[:, None])  # (n, N, d)
+    scale = jnp.minimum(radius, jnp.sqrt(length2))  # (N, 1)
+    return jnp.clip(particles[:, None] + scale[:, None] * moves.swapaxes(0, 1), low, high)
+
+
+def choose_moves(cands, cand_value, targets, threshold) -> tuple[jax.Array, jax.Array]:
+    """Per particle, the candidate above the threshold nearest its target, else the
+    best-valued one (wi:85-94). (N, n, d), (N, n), (N, d) -> ((N, d), (N,) feasible)."""
+    feasible = cand_value > threshold
+    dist = jnp.sum((cands - targets[:, None]) ** 2, axis=-1)
+    any_feasible = feasible.any(-1)
+    pick = jnp.where(
+        any_feasible,
+        jnp.argmin(jnp.where(feasible, dist, jnp.inf), axis=-1),
+        jnp.argmax(cand_value, axis=-1),
+    )
+    return jnp.take_along_axis(cands, pick[:, None, None], axis=1)[:, 0], any_feasible
+
+
+# --- the teacher ---------------------------------------------------------------------------
+
+
+@struct.dataclass
+class CurrotState:
+    """The particles, the success buffer and the episodes since the last update."""
+
+    particles: jax.Array  # (N, d)
+    buffer: SuccessBuffer
+    episode_goals: jax.Array  # (E, d) goals of the episodes since the last update
+    episode_returns: jax.Array  # (E,) float32 their success indicators
+    episode_count: jax.Array  # () int32 episodes held
+    updates: jax.Array  # () int32 particle updates done
+    threshold_reached: jax.Array  # () bool the particles' mean value once met delta
+
+
+class CurrotTeacher(teachers.Teacher):
+    """CURROT's particles as a goal teacher (see the module docstring)."""
+
+    needs_value = True
+    needs_start_obs = True
+
+    def __init__(self, cfg, env, classifier_net, uses_goal_value: bool = False):
+        super().__init__(cfg, env, classifier_net, uses_goal_value)
+        t = cfg.teachers
+        self.low = jnp.asarray(env.goal_low, jnp.float32)
+        self.high = jnp.asarray(env.goal_high, jnp.float32)
+        diagonal = float(jnp.linalg.norm(self.high - self.low))
+        self.radius = t.currot_trust_region * diagonal
+        self.threshold = value_threshold(t.currot_delta, cfg.sac.gamma, env.horizon)
+        # Whole iterations of episodes per update: at least currot_episodes_per_update.
+        per_iteration = cfg.num_envs
+        self.episodes_per_update = (
+            math.ceil(t.currot_episodes_per_update / per_iteration) * per_iteration
+        )
+
+    def init(self, key) -> CurrotState:
+        t, d = self.cfg.teachers, self.env.goal_dim
+        return CurrotState(
+            particles=self.env.sample_uniform_goals(key, t.currot_particles),  # me:179-180
+            buffer=empty_buffer(t.currot_particles, d),
+            episode_goals=jnp.zeros((self.episodes_per_update, d), jnp.float32),
+            episode_returns=jnp.zeros((self.episodes_per_update,), jnp.float32),
+            episode_count=jnp.zeros((), jnp.int32),
+            updates=jnp.zeros((), jnp.int32),
+            threshold_reached=jnp.zeros((), bool),
+        )
+
+    def propose(self, state: CurrotState, inputs: CurriculumInputs, key):
+        k = self.cfg.curriculum.n_slots
+        k_pick, k_jitter, k_metrics = jax.random.split(key, 3)
+        picks = jax.random.randint(k_pick, (k,), 0, state.particles.shape[0])
+        nu = _JITTER_FRACTION * (self.high - self.low)
+        jitter = jax.random.uniform(k_jitter, (k, self.env.goal_dim), minval=-nu, maxval=nu)
+        goals = jnp.clip(state.particles[picks] + jitter, self.low, self.high)
+        return goals, self.metrics(goals, k_metrics), state
+
+    def start_values(self, inputs: CurriculumInputs, goals: jax.Array) -> jax.Array:
+        """The critic's V(s0, g) for goals (..., d) -> (...)."""
+        obs = jnp.broadcast_to(inputs.start_obs, goals.shape[:-1] + inputs.start_obs.shape)
+        return inputs.value_fn(obs, goals)
+
+    def observe(self, state: CurrotState, episodes, inputs: CurriculumInputs):
+        goals = episodes.goal[:, 0]
+        successes = episodes.success.any(axis=1).astype(jnp.float32)  # the maze's return
+        at = state.episode_count + jnp.arange(goals.shape[0])
+        state = state.replace(
+            episode_goals=state.episode_goals.at[at].set(goals, mode="drop"),
+            episode_returns=state.episode_returns.at[at].set(successes, mode="drop"),
+            episode_count=state.episode_count + goals.shape[0],
+        )
+        due = state.episode_count >= self.episodes_per_update
+        state = jax.lax.cond(due, lambda s: self.update(s, inputs), lambda s: s, state)
+        buf = state.buffer
+        held = jnp.arange(buf.returns.shape[0]) < buf.count
+        return state, {
+            "currot/particle_value": self.start_values(inputs, state.particles).mean(),
+            "currot/buffer_return": jnp.where(held, buf.returns, 0.0).sum()
+            / jnp.maximum(buf.count, 1),
+            "currot/delta_reached": buf.delta_reached.astype(jnp.float32),
+            "currot/updates": state.updates.astype(jnp.float32),
+        }
+
+    def update(self, state: CurrotState, inputs: CurriculumInputs) -> CurrotState:
+        """One CURROT step on the held episodes (c:32-69 with wi:75-116)."""
+        t = self.cfg.teachers
+        n = t.currot_particles
+        k_target, k_samples, k_plan, k_cands = jax.random.split(inputs.key, 4)
+        buffer = update_buffer(
+            state.buffer, state.episode_goals, state.episode_returns,
+            curriculum.goal_slots(self.env, n, k_target), t.currot_delta, state.updates,
+        )  # fmt: skip
+        particle_value = self.start_values(inputs, state.particles)
+        samples = success_samples(buffer, n, t.currot_delta, self.low, self.high, k_samples)
+        particles, reached = ensure_successful(
+            state.particles, particle_value, samples, self.start_values(inputs, samples),
+            self.threshold,
+        )  # fmt: skip
+        targets = transport_targets(particles, curriculum.goal_slots(self.env, n, k_plan))
+        cands = candidates(
+            particles, targets, reached, self.radius, self.low, self.high, k_cands,
+            t.currot_candidates,
+        )  # fmt: skip
+        particles, _ = choose_moves(cands, self.start_values(inputs, cands), targets, self.threshold)
+        return state.replace(
+            particles=particles,
+            buffer=buffer,
+            episode_count=jnp.zeros((), jnp.int32),
+            updates=state.updates + 1,
+            threshold_reached=state.threshold_reached
+            | (particle_value.mean() >= self.threshold),
+        )

@@ -1,0 +1,174 @@
+"""CURROT (`--algo currot`, issue 20): its transport step against an exact solver, its
+success buffer, moves and threshold by hand. The runs (tiny preset, resume equals
+uninterrupted, every env) are in tests/test_teachers.py with the other teachers."""
+
+import dataclasses
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+from scipy.optimize import linear_sum_assignment
+
+import envs
+from d2c_jax import config
+from d2c_jax.curricula import currot, interface
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_transport_step_matches_scipys_exact_assignment(seed):
+    rng = np.random.default_rng(seed)
+    particles = rng.uniform(-5, 5, (24, 2)).astype(np.float32)
+    targets = rng.normal(3, 1, (24, 2)).astype(np.float32)
+    moved_to = np.asarray(currot.transport_targets(jnp.asarray(particles), jnp.asarray(targets)))
+    cost = ((particles[:, None] - targets[None]) ** 2).sum(-1)
+    rows, cols = linear_sum_assignment(cost)
+    # A permutation of the targets, and one of least total squared distance.
+    assert sorted(map(tuple, moved_to)) == sorted(map(tuple, targets))
+    ours = ((particles - moved_to) ** 2).sum()
+    np.testing.assert_allclose(ours, cost[rows, cols].sum(), rtol=1e-4)
+    np.testing.assert_array_equal(moved_to, targets[cols])  # random costs: a unique optimum
+
+
+def test_delta_becomes_a_value_threshold_on_the_critics_scale():
+    assert currot.value_threshold(0.8, 0.99, 100) == pytest.approx(0.8 * 0.99**100 / 0.01)
+    assert currot.value_threshold(0.8, 0.99, 100) == pytest.approx(29.28, abs=0.01)
+
+
+def _buffer(returns, goals=None, delta_reached=False, size=6):
+    buf = currot.empty_buffer(size, 2)
+    n = len(returns)
+    goals = np.zeros((n, 2)) if goals is None else np.asarray(goals)
+    return buf.replace(
+        goals=buf.goals.at[:n].set(jnp.asarray(goals, jnp.float32)),
+        returns=buf.returns.at[:n].set(jnp.asarray(returns, jnp.float32)),
+        stamps=buf.stamps.at[:n].set(jnp.arange(n) - n),  # entry 0 the oldest
+        count=jnp.asarray(n, jnp.int32),
+        delta_reached=jnp.asarray(delta_reached),
+        min_return=jnp.zeros((), jnp.float32),
+    )
+
+
+def _held(buf):
+    n = int(buf.count)
+    return np.asarray(buf.goals[:n]), np.asarray(buf.returns[:n])
+
+
+def test_phase_a_keeps_the_best_half_and_reaches_delta_on_the_median():
+    targets = jnp.zeros((6, 2))
+    first = currot.update_buffer(
+        currot.empty_buffer(6, 2), jnp.arange(8.0).reshape(4, 2), jnp.array([0.0, 1, 0, 0]),
+        targets, 0.8, 0,
+    )  # fmt: skip
+    # Every episode is at least the dummy's -inf: all enter, the dummy leaves, ascending.
+    goals, returns = _held(first)
+    np.testing.assert_array_equal(returns, [0, 0, 0, 1])
+    np.testing.assert_array_equal(goals[-1], [2, 3])
+    assert float(first.min_return) == 0.0 and not bool(first.delta_reached)
+    # Median (index 2 of 4) is 0: all four enter, min(2 + 1, 4) lowest leave, 5 stay.
+    second = currot.update_buffer(
+        first, jnp.full((4, 2), 9.0), jnp.array([1.0, 1, 0, 1]), targets, 0.8, 1
+    )
+    goals, returns = _held(second)
+    np.testing.assert_array_equal(returns, [0, 1, 1, 1, 1])
+    assert np.sum(goals[:, 0] == 9.0) == 4 and not bool(second.delta_reached)
+    # Median 1 > 0.8 before this update: phase B from now on; a failure does not enter.
+    third = currot.update_buffer(second, jnp.zeros((1, 2)), jnp.array([0.0]), targets, 0.8, 2)
+    assert bool(third.delta_reached) and int(third.count) == 5
+
+
+def test_phase_b_replaces_low_entries_then_selects_by_transport():
+    buf = _buffer([0.0, 0.0, 1.0, 1.0], goals=[[0, 0], [1, 1], [2, 2], [3, 3]],
+                  delta_reached=True, size=4)  # fmt: skip
+    targets = jnp.array([[5.0, 5.0], [6.0, 6.0], [2.0, 2.0], [3.0, 3.0]])
+    # One success (the failure is ignored): it replaces the lowest entry.
+    out = currot.update_buffer(
+        buf, jnp.array([[9.0, 9.0], [7.0, 7.0]]), jnp.array([1.0, 0.0]), targets, 0.8, 1
+    )
+    goals, returns = _held(out)
+    assert sorted(map(tuple, goals)) == [(1, 1), (2, 2), (3, 3), (9, 9)]
+    np.testing.assert_array_equal(returns, [0, 1, 1, 1])
+    # Two successes replace the last failure and the oldest success past N = 4.
+    out = currot.update_buffer(
+        out, jnp.array([[5.0, 5.0], [6.0, 6.0]]), jnp.array([1.0, 1.0]), targets, 0.8, 2
+    )
+    goals, returns = _held(out)
+    np.testing.assert_array_equal(returns, [1, 1, 1, 1])
+    assert sorted(map(tuple, goals)) == [(3, 3), (5, 5), (6, 6), (9, 9)]  # (2, 2) the oldest
+    # Full of successes: the 4 of the 4 + 1 that best transport onto the targets stay.
+    out = currot.update_buffer(out, jnp.array([[2.1, 2.1]]), jnp.array([1.0]), targets, 0.8, 3)
+    goals, _ = _held(out)
+    assert (9, 9) not in set(map(tuple, goals.round(1)))
+    assert sorted(map(tuple, goals.round(1))) == [(2.1, 2.1), (3, 3), (5, 5), (6, 6)]
+
+
+def test_success_samples_stay_on_successes_and_spread_failures():
+    low, high = jnp.full((2,), -10.0), jnp.full((2,), 10.0)
+    ok = _buffer([1.0, 1.0], goals=[[1, 1], [-2, 3]], delta_reached=True)
+    samples = np.asarray(currot.success_samples(ok, 200, 0.8, low, high, jax.random.key(0)))
+    # Phase B: both entries, the rest drawn uniformly among them; std 0.005 * 1.5 / 18 * 20.
+    near = np.minimum(np.abs(samples - [1, 1]).max(-1), np.abs(samples - [-2, 3]).max(-1))
+    assert near.max() < 0.05 and np.abs(samples[0] - [1, 1]).max() < 0.05
+    bad = _buffer([0.0, 0.0, 0.0, 0.0], goals=[[1, 1]] * 4)
+    spread = np.asarray(currot.success_samples(bad, 2000, 0.8, low, high, jax.random.key(1)))
+    # Failures: std (ub - lb) / 4 = 5 (plus the floor), redrawn into the box.
+    assert 4.0 < spread.std(0).mean() < 5.5 and np.all(np.abs(spread) <= 10.0)
+
+
+def test_failing_particles_move_to_the_nearest_eligible_success_samples():
+    particles = jnp.array([[0.0, 0.0], [5.0, 5.0], [10.0, 10.0]])
+    particle_value = jnp.array([50.0, 1.0, 2.0])  # particles 1 and 2 fail threshold 30
+    samples = jnp.array([[5.0, 5.5], [9.0, 9.0], [10.0, 10.5]])
+    sample_value = jnp.array([40.0, 10.0, 40.0])  # sample 1 is not eligible
+    moved, reached = currot.ensure_successful(
+        particles, particle_value, samples, sample_value, 30.0
+    )
+    np.testing.assert_array_equal(moved, [[0, 0], [5, 5.5], [10, 10.5]])
+    np.testing.assert_array_equal(reached, [True, True, True])
+    # Too few eligible samples: all are used, and the flag says which reached.
+    moved, reached = currot.ensure_successful(
+        particles, jnp.array([1.0, 1.0, 1.0]), samples, sample_value, 30.0
+    )
+    # Least total squared distance: 0 -> 0 (55.25), 1 -> 1 (32), 2 -> 2 (0.25).
+    np.testing.assert_array_equal(moved, [[5, 5.5], [9, 9], [10, 10.5]])
+    np.testing.assert_array_equal(reached, [True, False, True])
+
+
+def test_candidates_lie_in_the_trust_region_and_face_the_target_once_reached():
+    particles = jnp.array([[0.0, 0.0], [0.0, 0.0], [3.0, 3.0]])
+    targets = jnp.array([[10.0, 0.0], [10.0, 0.0], [3.5, 3.0]])
+    reached = jnp.array([True, False, True])
+    low, high = jnp.full((2,), -20.0), jnp.full((2,), 20.0)
+    cands = np.asarray(
+        currot.candidates(particles, targets, reached, 2.0, low, high, jax.random.key(0), 4000)
+    )
+    step = cands - np.asarray(particles)[:, None]
+    length = np.linalg.norm(step, axis=-1)
+    assert length[:2].max() <= 2.0 + 1e-5 and length[2].max() <= 0.5 + 1e-5  # min(r, |t - x|)
+    assert np.all(step[0, :, 0] >= -1e-5) and np.all(step[2, :, 0] >= -1e-5)  # half-balls
+    assert step[1, :, 0].min() < -1.0  # not reached: the whole ball
+    # Uniform in the ball: a quarter of the points within half the radius (2-D).
+    assert 0.22 < np.mean(length[1] < 1.0) < 0.28
+
+
+def test_moves_pick_the_feasible_candidate_nearest_the_target_else_the_best():
+    cands = jnp.array([[[1.0, 0.0], [2.0, 0.0], [3.0, 0.0]]] * 2)
+    targets = jnp.array([[3.0, 0.0], [3.0, 0.0]])
+    values = jnp.array([[40.0, 35.0, 10.0], [5.0, 20.0, 10.0]])
+    moved, feasible = currot.choose_moves(cands, values, targets, 30.0)
+    np.testing.assert_array_equal(moved, [[2.0, 0.0], [2.0, 0.0]])
+    np.testing.assert_array_equal(feasible, [True, False])
+
+
+def test_currot_proposes_particles_with_a_small_jitter_and_updates_every_50_episodes():
+    maze = envs.make("medium_maze")
+    cfg = config.with_algo(config.preset("medium_maze", "quick"), "currot")
+    teacher = interface.make_curriculum(cfg, maze, None)
+    assert teacher.episodes_per_update == 60  # 50 rounded up to whole iterations of 20
+    assert teacher.radius == pytest.approx(0.0481 * 36 * np.sqrt(2))  # about sqrt(1.5) * 2
+    state = teacher.init(jax.random.key(0))
+    goals, _, _ = teacher.propose(state, None, jax.random.key(1))
+    gap = np.abs(np.asarray(goals)[:, None] - np.asarray(state.particles)[None]).max(-1).min(-1)
+    assert gap.max() <= 1e-3 * 36 + 1e-5
+    cfg = dataclasses.replace(cfg, num_envs=32)
+    assert interface.make_curriculum(cfg, maze, None).episodes_per_update == 64
