@@ -12,6 +12,7 @@ from scipy.optimize import linear_sum_assignment
 
 import envs
 from d2c_jax import config
+from d2c_jax.core import rollout
 from d2c_jax.curricula import currot, interface
 
 
@@ -172,3 +173,64 @@ def test_currot_proposes_particles_with_a_small_jitter_and_updates_every_50_epis
     assert gap.max() <= 1e-3 * 36 + 1e-5
     cfg = dataclasses.replace(cfg, num_envs=32)
     assert interface.make_curriculum(cfg, maze, None).episodes_per_update == 64
+
+
+def _probe_episodes(goals, success):
+    """Episodes on held goals (n, d), succeeding from the first step where `success`."""
+    n, horizon = goals.shape[0], 4
+    return rollout.Episodes(
+        obs=jnp.zeros((n, horizon + 1, 6)),
+        achieved_goal=jnp.zeros((n, horizon + 1, 2)),
+        action=jnp.zeros((n, horizon, 2)),
+        goal=jnp.broadcast_to(goals[:, None], (n, horizon, 2)),
+        success=jnp.broadcast_to(success[:, None], (n, horizon)),
+        walk_start=jnp.full((n,), horizon, jnp.int32),
+    )
+
+
+def test_particles_press_to_the_edge_of_what_the_critic_can_do_toward_every_mode():
+    """A probe critic: V(s0, g) = 60 within 5 units of the start, falling linearly to 0 at
+    11, so V = delta_V = 29.3 on the circle of radius 8.07; episodes succeed within 8. The
+    target is medium_maze's four corner modes, 22.6 from the start. The particles must end
+    on that circle (the most the agent can do), split between the four modes' directions,
+    each as near its mode as the circle allows (22.6 - 8.07 = 14.6)."""
+    maze = envs.make("medium_maze")
+    cfg = config.with_algo(config.preset("medium_maze", "quick"), "currot")
+    teachers_cfg = dataclasses.replace(
+        cfg.teachers, currot_particles=64, currot_candidates=32, currot_episodes_per_update=20
+    )
+    cfg = dataclasses.replace(cfg, teachers=teachers_cfg)
+    teacher = interface.make_curriculum(cfg, maze, None)
+    start = jnp.asarray(maze.start_goal, jnp.float32)
+    modes = np.asarray(maze.goal_points)
+
+    def value_fn(obs, goals):
+        del obs
+        reach = jnp.linalg.norm(goals - start, axis=-1)
+        return 60.0 * jnp.clip(1.0 - (reach - 5.0) / 6.0, 0.0, 1.0)
+
+    inputs = interface.CurriculumInputs(
+        pool_ag=None, pool_obs=None, pool_valid=None, start_goal=start,
+        start_obs=jnp.zeros(6), classifier_params=None, value_fn=value_fn, hp=None,
+    )  # fmt: skip
+
+    @jax.jit
+    def iteration(state, key):
+        k_propose, k_observe = jax.random.split(key)
+        goals, _, state = teacher.propose(state, inputs, k_propose)
+        success = jnp.linalg.norm(goals - start, axis=-1) < 8.0
+        episodes = _probe_episodes(goals, success)
+        return teacher.observe(state, episodes, inputs._replace(key=k_observe))
+
+    state = teacher.init(jax.random.key(0))
+    for i in range(30):
+        state, metrics = iteration(state, jax.random.key(i))
+        assert all(np.isfinite(float(v)) for v in metrics.values()), metrics
+    assert int(state.updates) == 30 and float(metrics["currot/delta_reached"]) == 1.0
+    particles = np.asarray(state.particles)
+    reach = np.linalg.norm(particles - np.asarray(start), axis=-1)
+    assert np.mean(np.abs(reach - 8.07) < 0.5) >= 0.9, np.sort(reach)
+    to_modes = np.linalg.norm(particles[:, None] - modes[None], axis=-1)  # (N, 4)
+    assert abs(to_modes.min(-1).mean() - 14.6) < 1.0, to_modes.min(-1).mean()
+    shares = np.bincount(to_modes.argmin(-1), minlength=4) / len(particles)
+    assert shares.min() >= 0.15, shares

@@ -330,11 +330,11 @@ class CurrotTeacher(teachers.Teacher):
         due = state.episode_count >= self.episodes_per_update
         state = jax.lax.cond(due, lambda s: self.update(s, inputs), lambda s: s, state)
         buf = state.buffer
-        held = jnp.arange(buf.returns.shape[0]) < buf.count
+        held = jnp.isfinite(buf.returns)  # the entries in [0, count) but the initial dummy
         return state, {
             "currot/particle_value": self.start_values(inputs, state.particles).mean(),
             "currot/buffer_return": jnp.where(held, buf.returns, 0.0).sum()
-            / jnp.maximum(buf.count, 1),
+            / jnp.maximum(held.sum(), 1),
             "currot/delta_reached": buf.delta_reached.astype(jnp.float32),
             "currot/updates": state.updates.astype(jnp.float32),
         }
