@@ -271,8 +271,8 @@ class OutpaceConfig:
 
 @dataclasses.dataclass(frozen=True)
 class TeachersConfig:
-    """The goal-space teachers of psclklnk/currot (`--algo currot|plr|alp_gmm|vds`), with the defaults
-    of its maze ("sparse goal reaching") experiment (docs/BASELINES.md)."""
+    """The goal-space teachers of psclklnk/currot (`--algo currot|plr|alp_gmm|vds`), with
+    the defaults of its maze ("sparse goal reaching") experiment (docs/BASELINES.md)."""
 
     plr_replay_rate: float = 0.55
     """PLR: probability of replaying a buffered goal rather than drawing a new one."""
@@ -319,6 +319,9 @@ class TeachersConfig:
     diagonal (the reference's sqrt(1.5) in its 18 x 18 maze)."""
     currot_candidates: int = 100
     """CURROT: candidate moves per particle and update."""
+    currot_performance: Literal["critic", "returns"] = "critic"
+    """CURROT: the performance estimate, the critic's V(s0, g) or the reference's
+    regression of episode returns (docs/BASELINES.md)."""
 
 
 # --- the whole run ---------------------------------------------------------------
@@ -587,8 +590,7 @@ def with_algo(cfg: TrainConfig, algo: str) -> TrainConfig:
 _TEACHER_PRESET_SIZES: dict[str, dict[str, dict]] = {
     "vds": {
         "quick": dict(vds_updates_per_10k=200, vds_batch_size=256),
-        "tiny": dict(vds_members=3, vds_hidden_sizes=(16,), vds_batch_size=32,
-                     vds_candidates=64),
+        "tiny": dict(vds_members=3, vds_hidden_sizes=(16,), vds_batch_size=32, vds_candidates=64),
     },  # fmt: skip
     "currot": {
         "tiny": dict(currot_particles=16, currot_episodes_per_update=4, currot_candidates=8),

@@ -30,7 +30,6 @@ import jax
 import jax.numpy as jnp
 from flax import struct
 
-from d2c_jax.core.types import Metrics
 from d2c_jax.curricula import curriculum, matching, teachers
 from d2c_jax.curricula.interface import CurriculumInputs
 
@@ -43,6 +42,10 @@ _JITTER_FRACTION = 1e-3
 _MIN_STD_FRACTION = 0.005 * 1.5 / REFERENCE_BOX_WIDTH
 # A failed sample's std reaches (ub - lb) / 4 (c:129-130).
 _MAX_STD_FRACTION = 0.25
+# The regression's bandwidth h = 0.3 sqrt(eps), the trust region's radius (c:51).
+_BANDWIDTH_PER_RADIUS = 0.3
+# Queries per Nadaraya-Watson block: a block's distances to the 2N points stay small.
+_NW_CHUNK = 100
 # Out-of-bounds success samples are redrawn up to this many times, then clipped (c:157-168).
 _NOISE_TRIES = 10
 
@@ -70,6 +73,22 @@ def transport_targets(particles: jax.Array, targets: jax.Array) -> jax.Array:
     uniform point sets (an assignment minimising the total squared distance, the W2
     plan): (N, d), (N, d) -> (N, d), targets[sigma(i)]."""
     return targets[matching.auction(squared_distances(particles, targets))]
+
+
+def nadaraya_watson(queries, points, values, valid, bandwidth: float, k_nearest: int = 10):
+    """The reference's performance estimate (u:168-192, nw:197-233): y(x) = sum_j w_j y_j
+    with w_j proportional to exp(-|x - c_j|^2 / 2h^2) over the points within 3h of x, or
+    over its k nearest points when none is that near. queries (q, d), points (m, d),
+    values and valid (m,) -> (q,). (The reference keeps a random half of the neighbours
+    when there are many; we keep them all.)"""
+    d2 = squared_distances(queries, points)
+    d2 = jnp.where(valid[None], d2, jnp.inf)
+    near = d2 < (3.0 * bandwidth) ** 2
+    k = min(k_nearest, points.shape[0])
+    kth = -jax.lax.top_k(-d2, k)[0][:, -1:]  # (q, 1) the k-th smallest distance
+    use = jnp.where(near.any(-1, keepdims=True), near, d2 <= kth) & valid[None]
+    weights = jax.nn.softmax(jnp.where(use, -d2 / (2.0 * bandwidth**2), -jnp.inf), axis=-1)
+    return jnp.sum(jnp.where(use, weights * values[None], 0.0), axis=-1)
 
 
 # --- the success buffer (c:189-278) ---------------------------------------------------
@@ -100,23 +119,27 @@ def empty_buffer(n: int, d: int) -> SuccessBuffer:
 
 
 def select_entries(goals, returns, stamps, keep, priority, n: int, buf: SuccessBuffer):
-    """The buffer holding the n highest-`priority` entries among `keep`, stored ascending
-    by return. goals (m, d), returns, stamps, keep, priority (m,), m >= n."""
+    """(The buffer holding the n highest-`priority` entries among `keep`, stored ascending
+    by return; (m - n,) bool which of the rows after the first n, the new episodes, are
+    in it). goals (m, d), returns, stamps, keep, priority (m,), m >= n."""
     top = jnp.lexsort((-priority, ~keep))[:n]  # kept entries first, best priority first
     valid = keep[top]
     order = top[jnp.lexsort((returns[top], ~valid))]  # valid first, ascending return
     valid = keep[order]
-    return buf.replace(
+    entered = jnp.zeros((goals.shape[0],), bool).at[order].max(valid)[n:]
+    buf = buf.replace(
         goals=goals[order],
         returns=jnp.where(valid, returns[order], -jnp.inf),
         stamps=stamps[order],
         count=valid.sum().astype(jnp.int32),
     )
+    return buf, entered
 
 
 def update_buffer(buf: SuccessBuffer, goals, returns, targets, delta: float, stamp):
-    """The buffer after a batch of episodes (goals (m, d), returns (m,)); `targets` (N, d)
-    are fresh target samples for phase B's transport selection.
+    """(The buffer after a batch of episodes (goals (m, d), returns (m,)), (m,) bool which
+    of them entered it); `targets` (N, d) are fresh target samples for phase B's
+    transport selection.
 
     Phase A (delta not reached, c:194-229): episodes at or above the buffer's median
     enter, as many of the lowest entries leave (at most half the buffer plus one), the
@@ -139,8 +162,8 @@ def update_buffer(buf: SuccessBuffer, goals, returns, targets, delta: float, sta
         accept = returns >= median
         dropped = jnp.minimum(buf.count // 2 + 1, accept.sum())
         keep = jnp.concatenate([valid & (slot >= dropped), accept])
-        out = select_entries(all_goals, all_returns, all_stamps, keep, all_returns, n, buf)
-        return out.replace(delta_reached=median > delta)
+        out, entered = select_entries(all_goals, all_returns, all_stamps, keep, all_returns, n, buf)
+        return out.replace(delta_reached=median > delta), entered
 
     def phase_b(buf: SuccessBuffer) -> SuccessBuffer:
         success = returns >= delta
@@ -269,14 +292,17 @@ class CurrotState:
     episode_returns: jax.Array  # (E,) float32 their success indicators
     episode_count: jax.Array  # () int32 episodes held
     updates: jax.Array  # () int32 particle updates done
-    threshold_reached: jax.Array  # () bool the particles' mean value once met delta
+    threshold_reached: jax.Array  # () bool the particles' mean performance once met delta
+    fail_goals: jax.Array  # (N, d) the last N episodes that did not enter the buffer
+    fail_returns: jax.Array  # (N,) float32 their returns (c:38-42); -inf: empty
 
 
 class CurrotTeacher(teachers.Teacher):
-    """CURROT's particles as a goal teacher (see the module docstring)."""
+    """CURROT's particles as a goal teacher (see the module docstring).
 
-    needs_value = True
-    needs_start_obs = True
+    `currot_performance` picks the performance estimate: "critic", V(s0, g) against
+    `value_threshold(delta)`; or "returns", the reference's Nadaraya-Watson regression of
+    the success and failure buffers' episode returns against delta itself."""
 
     def __init__(self, cfg, env, classifier_net, uses_goal_value: bool = False):
         super().__init__(cfg, env, classifier_net, uses_goal_value)
@@ -285,7 +311,14 @@ class CurrotTeacher(teachers.Teacher):
         self.high = jnp.asarray(env.goal_high, jnp.float32)
         diagonal = float(jnp.linalg.norm(self.high - self.low))
         self.radius = t.currot_trust_region * diagonal
-        self.threshold = value_threshold(t.currot_delta, cfg.sac.gamma, env.horizon)
+        self.bandwidth = _BANDWIDTH_PER_RADIUS * self.radius
+        self.uses_critic = t.currot_performance == "critic"
+        self.needs_value = self.needs_start_obs = self.uses_critic
+        self.threshold = (
+            value_threshold(t.currot_delta, cfg.sac.gamma, env.horizon)
+            if self.uses_critic
+            else t.currot_delta
+        )
         # Whole iterations of episodes per update: at least currot_episodes_per_update.
         per_iteration = cfg.num_envs
         self.episodes_per_update = (
@@ -302,6 +335,8 @@ class CurrotTeacher(teachers.Teacher):
             episode_count=jnp.zeros((), jnp.int32),
             updates=jnp.zeros((), jnp.int32),
             threshold_reached=jnp.zeros((), bool),
+            fail_goals=jnp.zeros((t.currot_particles, d), jnp.float32),
+            fail_returns=jnp.full((t.currot_particles,), -jnp.inf, jnp.float32),
         )
 
     def propose(self, state: CurrotState, inputs: CurriculumInputs, key):
@@ -313,10 +348,31 @@ class CurrotTeacher(teachers.Teacher):
         goals = jnp.clip(state.particles[picks] + jitter, self.low, self.high)
         return goals, self.metrics(goals, k_metrics), state
 
-    def start_values(self, inputs: CurriculumInputs, goals: jax.Array) -> jax.Array:
-        """The critic's V(s0, g) for goals (..., d) -> (...)."""
-        obs = jnp.broadcast_to(inputs.start_obs, goals.shape[:-1] + inputs.start_obs.shape)
-        return inputs.value_fn(obs, goals)
+    def performance(self, state: CurrotState, buffer: SuccessBuffer, inputs: CurriculumInputs):
+        """The estimate, goals (..., d) -> (...), on the scale of `self.threshold`."""
+        if self.uses_critic:
+
+            def critic(goals):
+                obs = jnp.broadcast_to(inputs.start_obs, goals.shape[:-1] + inputs.start_obs.shape)
+                return inputs.value_fn(obs, goals)
+
+            return critic
+        points = jnp.concatenate([buffer.goals, state.fail_goals])
+        values = jnp.concatenate([buffer.returns, state.fail_returns])
+        valid = jnp.isfinite(values)
+
+        def regression(goals):
+            flat = goals.reshape(-1, goals.shape[-1])
+            # Blocks of queries: (chunk, 2N) distances at a time, not (N n, 2N).
+            chunk = min(flat.shape[0], _NW_CHUNK)
+            pad = -flat.shape[0] % chunk
+            blocks = jnp.pad(flat, ((0, pad), (0, 0))).reshape(-1, chunk, flat.shape[-1])
+            out = jax.lax.map(
+                lambda q: nadaraya_watson(q, points, values, valid, self.bandwidth), blocks
+            )
+            return out.reshape(-1)[: flat.shape[0]].reshape(goals.shape[:-1])
+
+        return regression
 
     def observe(self, state: CurrotState, episodes, inputs: CurriculumInputs):
         goals = episodes.goal[:, 0]
@@ -331,8 +387,10 @@ class CurrotTeacher(teachers.Teacher):
         state = jax.lax.cond(due, lambda s: self.update(s, inputs), lambda s: s, state)
         buf = state.buffer
         held = jnp.isfinite(buf.returns)  # the entries in [0, count) but the initial dummy
+        performance = self.performance(state, buf, inputs)(state.particles)
         return state, {
-            "currot/particle_value": self.start_values(inputs, state.particles).mean(),
+            # 1: the particles sit at delta on average.
+            "currot/performance_ratio": performance.mean() / self.threshold,
             "currot/buffer_return": jnp.where(held, buf.returns, 0.0).sum()
             / jnp.maximum(held.sum(), 1),
             "currot/delta_reached": buf.delta_reached.astype(jnp.float32),
@@ -344,27 +402,41 @@ class CurrotTeacher(teachers.Teacher):
         t = self.cfg.teachers
         n = t.currot_particles
         k_target, k_samples, k_plan, k_cands = jax.random.split(inputs.key, 4)
-        buffer = update_buffer(
+        buffer, entered = update_buffer(
             state.buffer, state.episode_goals, state.episode_returns,
             curriculum.goal_slots(self.env, n, k_target), t.currot_delta, state.updates,
         )  # fmt: skip
-        particle_value = self.start_values(inputs, state.particles)
+        if not self.uses_critic:  # the failures feed the regression once delta was met
+            state = record_failures(state, ~entered & state.threshold_reached)
+        performance = self.performance(state, buffer, inputs)
+        particle_perf = performance(state.particles)
         samples = success_samples(buffer, n, t.currot_delta, self.low, self.high, k_samples)
         particles, reached = ensure_successful(
-            state.particles, particle_value, samples, self.start_values(inputs, samples),
-            self.threshold,
-        )  # fmt: skip
+            state.particles, particle_perf, samples, performance(samples), self.threshold
+        )
         targets = transport_targets(particles, curriculum.goal_slots(self.env, n, k_plan))
         cands = candidates(
             particles, targets, reached, self.radius, self.low, self.high, k_cands,
             t.currot_candidates,
         )  # fmt: skip
-        particles, _ = choose_moves(cands, self.start_values(inputs, cands), targets, self.threshold)
+        particles, _ = choose_moves(cands, performance(cands), targets, self.threshold)
         return state.replace(
             particles=particles,
             buffer=buffer,
             episode_count=jnp.zeros((), jnp.int32),
             updates=state.updates + 1,
-            threshold_reached=state.threshold_reached
-            | (particle_value.mean() >= self.threshold),
+            threshold_reached=state.threshold_reached | (particle_perf.mean() >= self.threshold),
         )
+
+
+def record_failures(state: CurrotState, failed: jax.Array) -> CurrotState:
+    """The fail buffer (a FIFO of the last N, c:38-42) after this update's episodes whose
+    `failed` (E,) is set, in episode order."""
+    n = state.fail_returns.shape[0]
+    order = jnp.argsort(~failed, stable=True)  # the failures first, in order
+    count = failed.sum()
+    goals = jnp.concatenate([state.fail_goals, state.episode_goals[order]])
+    returns = jnp.concatenate([state.fail_returns, state.episode_returns[order]])
+    # The last n of the old entries followed by the `count` new ones.
+    take = jnp.arange(n) + count
+    return state.replace(fail_goals=goals[take], fail_returns=returns[take])
