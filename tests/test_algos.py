@@ -244,6 +244,7 @@ def test_compare_trains_each_algo_and_writes_table_and_figure(tmp_path):
     assert compare.main([*argv, "--out", str(out), "--algos", "d2c,nope"]) == 2
 
 
+@pytest.mark.slow  # test_sweep's arm-equals-single-run covers the mechanism
 def test_hgg_sweep_arm_equals_its_single_run(tmp_path):
     """--algo under --sweep: each arm's run is the single run with that value and seed."""
     swept = _train_tiny("medium_maze", "hgg", tmp_path / "sweep", "--sweep", "sac.tau=0.005,0.02")

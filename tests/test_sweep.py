@@ -199,6 +199,7 @@ def free_port() -> int:
         return s.getsockname()[1]
 
 
+@pytest.mark.slow  # two processes, each compiling cold: minutes on 2 cores
 def test_two_processes_split_a_sweep_and_resume(unsharded, tmp_path):
     """Two processes joined by jax.distributed (gloo on CPU): process 0 runs runs 0-1,
     process 1 run 2 and a padding run; process 0 writes the rows of all three, each

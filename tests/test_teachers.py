@@ -10,7 +10,7 @@ import pytest
 import envs
 from d2c_jax import config
 from d2c_jax.core import rollout
-from d2c_jax.curricula import interface, teachers
+from d2c_jax.curricula import gmm, interface, teachers
 from d2c_jax.training import cli, loop
 from d2c_jax.training import logging as logging_lib
 
@@ -97,6 +97,33 @@ def test_alp_is_the_return_change_at_the_nearest_earlier_goal():
     assert float(alp) == pytest.approx(6.0)  # nearest is (1, 0) with return 4
     young = teachers.absolute_learning_progress(jnp.array([1.2, 0.1]), 10.0, history, returns, 5)
     assert float(young) == 0.0  # OUTPACE's reference waits for more than 5 episodes
+
+
+def test_alp_gmm_discards_fits_that_are_not_finite_and_keeps_its_mixture(maze):
+    """A quick medium_maze run stopped at 60k steps on NaN goals: in float32 the EM of
+    some k collapsed a component onto a few rows, and the least-AIC pick took its NaN.
+    Here 150 identical rows and no reg_covar make such collapses certain: a fit that is
+    not finite must lose, and when no fit is usable the previous mixture stays."""
+    cfg, alp = _teacher(maze, "alp_gmm", alp_reg_covar=0.0)
+    rng = np.random.default_rng(0)
+    spread = np.concatenate([rng.uniform(-18, 18, (50, 2)), rng.uniform(0, 1, (50, 1))], 1)
+    rows = jnp.asarray(np.concatenate([np.tile([[1.0, 1.0, 0.0]], (150, 1)), spread]), jnp.float32)
+    keys = jax.random.split(jax.random.key(3), 9)
+    fits = [
+        gmm.fit(rows, teachers.initial_mixture(rows, k, key), reg_covar=0.0).mixture
+        for k, key in zip(range(2, 11), keys, strict=True)
+    ]
+    finite = [all(bool(jnp.isfinite(leaf).all()) for leaf in fit) for fit in fits]
+    assert not all(finite), finite  # the case is real
+    mixture, usable = teachers.fit_best_mixture(rows, 10, jax.random.key(3), cfg.teachers)
+    assert bool(usable) == any(finite)
+    if any(finite):
+        assert all(bool(jnp.isfinite(leaf).all()) for leaf in mixture)
+    state = alp.init(jax.random.key(0))
+    kept = alp._refit(state.replace(tasks=rows.at[0, 0].set(jnp.nan)), jax.random.key(1))
+    assert not bool(kept.fitted)  # no fit of NaN rows is usable: the mixture stays
+    for new, old in zip(kept.mixture, state.mixture, strict=True):
+        np.testing.assert_array_equal(new, old)
 
 
 def test_alp_gmm_samples_where_learning_progresses(maze):

@@ -196,18 +196,30 @@ def pad_mixture(mixture: gmm.Mixture, k_max: int) -> gmm.Mixture:
     )
 
 
-def fit_best_mixture(x: jax.Array, k_max: int, key, t: config_lib.TeachersConfig) -> gmm.Mixture:
+def fit_best_mixture(
+    x: jax.Array, k_max: int, key, t: config_lib.TeachersConfig
+) -> tuple[gmm.Mixture, jax.Array]:
     """EM for k = 2..k_max components (at most one per row), the least AIC kept, padded
-    to k_max (weight 0)."""
+    to k_max (weight 0). Returns (mixture, () bool some fit was usable).
+
+    A fit whose parameters or AIC are not finite is discarded: in float32 a component
+    that collapses onto a few rows can leave a covariance Cholesky cannot factor
+    (reg_covar 1e-6 is scikit-learn's float64 default), and argmin would pick its NaN."""
     fits, scores = [], []
     ks = range(2, min(k_max, x.shape[0]) + 1)
     for k, k_key in zip(ks, jax.random.split(key, len(ks)), strict=True):
         fitted = gmm.fit(x, initial_mixture(x, k, k_key), reg_covar=t.alp_reg_covar,
                          tol=t.alp_tol, max_iter=t.alp_max_iter).mixture  # fmt: skip
+        score = aic(x, fitted, k)
+        usable = jnp.isfinite(score) & jnp.all(
+            jnp.stack([jnp.isfinite(leaf).all() for leaf in fitted])
+        )
         fits.append(pad_mixture(fitted, k_max))
-        scores.append(aic(x, fitted, k))
-    best = jnp.argmin(jnp.stack(scores))
-    return jax.tree.map(lambda *xs: jnp.stack(xs)[best], *fits)
+        scores.append(jnp.where(usable, score, jnp.inf))
+    scores = jnp.stack(scores)
+    best = jnp.argmin(scores)
+    mixture = jax.tree.map(lambda *xs: jnp.stack(xs)[best], *fits)
+    return mixture, jnp.isfinite(scores[best])
 
 
 class ALPGMMTeacher(Teacher):
@@ -281,7 +293,9 @@ class ALPGMMTeacher(Teacher):
         }
 
     def _refit(self, state: ALPGMMState, key) -> ALPGMMState:
-        mixture = fit_best_mixture(
+        """A new mixture; the previous one (or none) stays when no fit was usable."""
+        mixture, usable = fit_best_mixture(
             state.tasks, self.cfg.teachers.alp_max_components, key, self.cfg.teachers
         )
-        return state.replace(mixture=mixture, fitted=jnp.ones((), bool))
+        mixture = jax.tree.map(lambda new, old: jnp.where(usable, new, old), mixture, state.mixture)
+        return state.replace(mixture=mixture, fitted=state.fitted | usable)
