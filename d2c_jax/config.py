@@ -319,9 +319,9 @@ class TeachersConfig:
     diagonal (the reference's sqrt(1.5) in its 18 x 18 maze)."""
     currot_candidates: int = 100
     """CURROT: candidate moves per particle and update."""
-    currot_performance: Literal["critic", "returns"] = "critic"
-    """CURROT: the performance estimate, the critic's V(s0, g) or the reference's
-    regression of episode returns (docs/BASELINES.md)."""
+    currot_performance: Literal["returns", "critic"] = "returns"
+    """CURROT: the performance estimate, the reference's regression of episode returns or
+    the critic's V(s0, g) (docs/DEVIATIONS.md, "CURROT": the critic overrates goals)."""
 
 
 # --- the whole run ---------------------------------------------------------------

@@ -14,18 +14,6 @@ os.environ.setdefault("JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS", "0.5")
 
 import pytest  # noqa: E402
 
-# The default suite's programs are tiny: compiling them is most of its time, and less
-# LLVM optimisation compiles them about a third faster (measured on two tests: 94 s ->
-# 64 s cold). Only when slow tests are deselected: those run real training.
-_FAST_COMPILE_FLAGS = "--xla_backend_optimization_level=0 --xla_llvm_disable_expensive_passes=true"
-
-
-def pytest_configure(config):
-    """Before any test initialises JAX's backend (XLA_FLAGS is read then)."""
-    selects_slow = "slow" in (config.getoption("markexpr") or "").replace("not slow", "")
-    if not selects_slow and _FAST_COMPILE_FLAGS not in os.environ["XLA_FLAGS"]:
-        os.environ["XLA_FLAGS"] += " " + _FAST_COMPILE_FLAGS
-
 
 @pytest.fixture(scope="session")
 def medium_maze():

@@ -33,6 +33,9 @@ def strip_time(rows: list[dict]) -> list[dict]:
 
 
 BASELINES = ("her", "hgg")
+# The algos whose tiny medium_maze run no other default test trains (HGG, PLR, ALP-GMM and
+# CURROT train it in their resume tests).
+_TRAINED_ONCE_HERE = ("her", "outpace", "vds")
 
 
 def _train_tiny(env_name: str, algo: str, out, *extra: str) -> list[dict]:
@@ -48,7 +51,8 @@ def _check_baseline_run(env_name: str, algo: str, out) -> None:
     for key in ("eval/success", "curriculum/distance", "sac/critic_loss"):
         assert np.isfinite(last[key]), key
     # The sparse reward is 0 or 1 per transition, and no classifier is trained.
-    assert 0.0 <= last["sac/reward_mean"] <= 1.0
+    if config.ALGO_REWARDS[algo] == "sparse":
+        assert 0.0 <= last["sac/reward_mean"] <= 1.0
     assert not any(k.startswith("classifier/") for k in last)
     assert config.from_dict(config.TrainConfig, _config_json(out)).algo == algo
 
@@ -57,7 +61,7 @@ def _config_json(out) -> dict:
     return json.loads((out / "config.json").read_text())
 
 
-@pytest.mark.parametrize("algo", BASELINES)
+@pytest.mark.parametrize("algo", _TRAINED_ONCE_HERE)
 def test_baseline_trains_tiny_on_medium_maze(algo, tmp_path):
     _check_baseline_run("medium_maze", algo, tmp_path / "run")
 

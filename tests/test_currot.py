@@ -281,3 +281,15 @@ def test_particles_press_to_the_edge_of_what_the_agent_can_do_toward_every_mode(
     assert abs(to_modes.min(-1).mean() - gap) < 1.0, to_modes.min(-1).mean()
     shares = np.bincount(to_modes.argmin(-1), minlength=4) / len(particles)
     assert shares.min() >= 0.15, shares
+
+
+@pytest.mark.slow  # the default suite trains CURROT (returns) in tests/test_teachers.py
+def test_currot_with_the_critic_trains_tiny_through_the_cli(tmp_path):
+    from d2c_jax.training import cli, loop
+    from d2c_jax.training import logging as logging_lib
+
+    args = ["--env", "medium_maze", "--preset", "tiny", "--algo", "currot"]
+    cfg, _, _ = cli.parse_args([*args, "--teachers.currot-performance", "critic"])
+    assert loop.train(cfg, tmp_path / "run", quiet=True) == 0
+    last = logging_lib.read_metrics(tmp_path / "run" / "metrics.jsonl")[-1]
+    assert last["currot/updates"] == 2.0 and np.isfinite(last["currot/performance_ratio"])

@@ -120,6 +120,7 @@ def _train(out, *extra):
             for r in logging_lib.read_metrics(out / "metrics.jsonl")]  # fmt: skip
 
 
+@pytest.mark.slow  # minutes cold on 2 cores; the default suite trains OUTPACE once (test_algos)
 def test_outpace_trains_matches_and_resumes_like_an_uninterrupted_run(tmp_path):
     extra = ("--curriculum.rematch-every", "400", "--total-steps", "800")
     full = _train(tmp_path / "full", *extra)

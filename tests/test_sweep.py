@@ -105,7 +105,16 @@ def test_layout_pads_each_process_to_whole_device_blocks():
     assert list(one.local_runs()) == [] and one.local_run_ids().tolist() == [0]
 
 
-@pytest.mark.parametrize("field", sweep.SWEEPABLE_FIELDS)
+# One field of each kind in the default suite (the switch-like reward, an SAC, a
+# classifier and a curriculum value); every field under `slow` (two traces each).
+_DEFAULT_SWEEP_FIELDS = ("reward", "sac.critic_lr", "classifier.lr", "curriculum.goal_noise")
+
+
+@pytest.mark.parametrize(
+    "field",
+    [f if f in _DEFAULT_SWEEP_FIELDS else pytest.param(f, marks=pytest.mark.slow)
+     for f in sweep.SWEEPABLE_FIELDS],
+)  # fmt: skip
 def test_every_sweepable_field_is_a_traced_input_of_the_step(field, medium_maze):
     """Two configs that differ only in a swept field's own value compile to the same
     program, whose hyperparameters differ: the value is data, not a constant."""
@@ -158,6 +167,7 @@ def test_a_sweep_arm_with_seed_s_equals_the_single_run(tmp_path):
 # --- devices and processes --------------------------------------------------------------
 
 
+@pytest.mark.slow  # subprocesses compiling cold on two host devices: minutes on 2 cores
 def test_sharded_sweep_and_its_resume_equal_the_unsharded_run(unsharded, tmp_path):
     """Two host devices: three runs padded to four; then a run stopped after one
     iteration and resumed gives the same rows."""

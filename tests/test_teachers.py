@@ -157,7 +157,11 @@ def _train(algo, out, *extra):
             for r in logging_lib.read_metrics(out / "metrics.jsonl")]  # fmt: skip
 
 
-@pytest.mark.parametrize("algo", TEACHERS)
+# VDS's state is network parameters, checkpointed like SAC's: its resume test is slow,
+# and the default suite trains it once (tests/test_algos.py).
+@pytest.mark.parametrize(
+    "algo", [pytest.param(a, marks=pytest.mark.slow) if a == "vds" else a for a in TEACHERS]
+)
 def test_teacher_trains_and_resumes_like_an_uninterrupted_run(algo, tmp_path):
     extra = ("--teachers.alp-fit-rate", "8", "--total-steps", "800")
     full = _train(algo, tmp_path / "full", *extra)

@@ -9,9 +9,11 @@ only to a point whose estimated performance stays above the threshold delta.
 
 We follow psclklnk/currot main@4147270 (`deep_sprl/teachers/spl/currot.py` and
 `wasserstein_interpolation.py`; docs/BASELINES.md cites each formula and constant),
-with three departures (docs/DEVIATIONS.md, "CURROT"):
-- performance is our critic's V(s0, g) (issue 20), not a Nadaraya-Watson regression of
-  episode returns, so delta is converted to the value scale (`value_threshold`);
+with two departures (docs/DEVIATIONS.md, "CURROT"), and an option:
+- performance is the reference's Nadaraya-Watson regression of episode returns, or, with
+  `--teachers.currot-performance critic`, our critic's V(s0, g) (issue 20) against delta
+  converted to the value scale (`value_threshold`); the critic overrates goals it has
+  not reached, so it is not the default;
 - the transport plan is the exact assignment (our auction), not the reference's
   sliced-Wasserstein estimate of it (its icml branch: Sinkhorn at blur 0.01, near exact);
 - lengths are expressed as fractions of the goal box (the reference's maze spans 18
