@@ -159,7 +159,7 @@ def update_buffer(buf: SuccessBuffer, goals, returns, targets, delta: float, sta
     first = jnp.isinf(buf.min_return)  # the first batch sets the scale (c:113-114)
     buf = buf.replace(min_return=jnp.where(first, returns.min(), buf.min_return))
 
-    def phase_a(buf: SuccessBuffer) -> SuccessBuffer:
+    def phase_a(buf: SuccessBuffer) -> tuple[SuccessBuffer, jax.Array]:
         median = buf.returns[buf.count // 2]
         accept = returns >= median
         dropped = jnp.minimum(buf.count // 2 + 1, accept.sum())
@@ -167,7 +167,7 @@ def update_buffer(buf: SuccessBuffer, goals, returns, targets, delta: float, sta
         out, entered = select_entries(all_goals, all_returns, all_stamps, keep, all_returns, n, buf)
         return out.replace(delta_reached=median > delta), entered
 
-    def phase_b(buf: SuccessBuffer) -> SuccessBuffer:
+    def phase_b(buf: SuccessBuffer) -> tuple[SuccessBuffer, jax.Array]:
         success = returns >= delta
         low = valid & (buf.returns < delta)
         sources_ok = jnp.concatenate([valid, success])
