@@ -136,6 +136,7 @@ def test_seed_sweep_notebook(tmp_path):
     assert "±" in text
 
 
+@pytest.mark.slow  # builds and renders all six envs: minutes cold on 2 cores
 def test_environments_notebook(tmp_path, gl_backend):  # renders every env
     nb = run_notebook("03_environments.ipynb", tmp_path)
     import envs

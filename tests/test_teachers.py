@@ -157,11 +157,10 @@ def _train(algo, out, *extra):
             for r in logging_lib.read_metrics(out / "metrics.jsonl")]  # fmt: skip
 
 
-# VDS's state is network parameters, checkpointed like SAC's: its resume test is slow,
-# and the default suite trains it once (tests/test_algos.py).
-@pytest.mark.parametrize(
-    "algo", [pytest.param(a, marks=pytest.mark.slow) if a == "vds" else a for a in TEACHERS]
-)
+# Minutes cold on 2 cores: the default suite trains each teacher once (tests/test_algos.py)
+# and checks a curriculum state's checkpointing on a probe curriculum.
+@pytest.mark.slow
+@pytest.mark.parametrize("algo", TEACHERS)
 def test_teacher_trains_and_resumes_like_an_uninterrupted_run(algo, tmp_path):
     extra = ("--teachers.alp-fit-rate", "8", "--total-steps", "800")
     full = _train(algo, tmp_path / "full", *extra)

@@ -391,15 +391,21 @@ def test_sigterm_checkpoints_and_resume_continues(tmp_path):
         ["--curriculum.variant", "value"],
         pytest.param(["--curriculum.variant", "none"], marks=pytest.mark.slow),
         pytest.param(["--reward", "sparse"], marks=pytest.mark.slow),
-        ["--curriculum.archive-size", "8", "--curriculum.archive-rarity", "1"],
-        [
-            "--classifier.goal-candidates",
-            "buffer_and_desired",
-            "--classifier.n-heads",
-            "4",
-            "--classifier.diversity-weight",
-            "0",
-        ],
+        pytest.param(
+            ["--curriculum.archive-size", "8", "--curriculum.archive-rarity", "1"],
+            marks=pytest.mark.slow,
+        ),
+        pytest.param(
+            [
+                "--classifier.goal-candidates",
+                "buffer_and_desired",
+                "--classifier.n-heads",
+                "4",
+                "--classifier.diversity-weight",
+                "0",
+            ],
+            marks=pytest.mark.slow,
+        ),
     ],
 )
 def test_ablations_run_one_iteration(override):
