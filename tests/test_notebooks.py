@@ -127,6 +127,7 @@ def test_quickstart_notebook(tmp_path, gl_backend):  # renders a video
     assert len(images) >= 3  # success curve, curriculum, policy video
 
 
+@pytest.mark.slow  # a vmapped-seed training run: the sweep tests cover the path
 def test_seed_sweep_notebook(tmp_path):
     nb = run_notebook("02_seed_sweep.ipynb", tmp_path)
     (run,) = (tmp_path / "sweep").glob("*/metrics.jsonl")  # both λ arms in one run
