@@ -119,6 +119,7 @@ def maze():
     return envs.make("medium_maze")
 
 
+@pytest.mark.slow  # the default suite's tiny baseline runs check the same through loop.train
 def test_baselines_train_no_classifier_and_use_the_sparse_reward(maze):
     cfg = config.with_algo(config.preset("medium_maze", "tiny"), "her")
     agent = agent_lib.Agent(cfg, maze)
