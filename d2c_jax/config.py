@@ -369,7 +369,7 @@ class TrainConfig:
     """Env steps between checkpoints: every ceil(checkpoint_every / E) iterations (and at
     the end, and on a signal). Default: 25 paper iterations of medium_maze (20 x H 100)."""
     algo: Literal["d2c", "her", "hgg", "outpace", "currot", "plr", "alp_gmm", "vds"] = "d2c"
-    """The curriculum and its reward: D2C, or a baseline (HER alone, HGG); `with_algo`."""
+    """The curriculum and its reward: D2C, or a baseline (`ALGO_NAMES`); `with_algo`."""
     reward: Literal["intrinsic", "sparse"] = "intrinsic"
     """D2C's intrinsic reward p_pseudo(phi(s'); g), or the sparse ablation."""
     sac: SACConfig = dataclasses.field(default_factory=SACConfig)

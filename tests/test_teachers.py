@@ -1,4 +1,5 @@
-"""The goal-space teachers (`--algo plr|alp_gmm`, issue 20): rules by hand, and runs."""
+"""The goal-space teachers (`--algo currot|plr|alp_gmm|vds`, issue 20): rules by hand, and
+runs (CURROT's own rules: tests/test_currot.py)."""
 
 import dataclasses
 
