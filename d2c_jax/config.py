@@ -696,3 +696,43 @@ def _upgrade(values: dict) -> dict:
         num_envs = values.get("num_envs", TrainConfig.num_envs)
         values["checkpoint_every"] = _iteration_steps(env, num_envs, values["checkpoint_every"])
     return values
+
+
+def unknown_fields(cls, values, prefix: str = "") -> list[str]:
+    """Dotted names in a config.json-style dict `values` that config dataclass `cls` lacks,
+    or that give a section (a nested config) as something other than an object.
+
+    Example: {"sac": {"batchsize": 1}} -> ["sac.batchsize"].
+    """
+    if not isinstance(values, dict):
+        return [prefix.rstrip(".") or "(top level: not an object)"]
+    hints = typing.get_type_hints(cls)
+    problems = []
+    for name, value in values.items():
+        if name not in hints:
+            problems.append(prefix + name)
+        elif dataclasses.is_dataclass(hints[name]):
+            problems += unknown_fields(hints[name], value, prefix + name + ".")
+    return problems
+
+
+def field_docs(cls) -> dict[str, str]:
+    """The docstring of each field of config dataclass `cls`, on one line, read from the
+    source: every field here is followed by a string literal."""
+    import ast
+    import inspect
+    import textwrap
+
+    tree = ast.parse(textwrap.dedent(inspect.getsource(cls)))
+    body = tree.body[0].body
+    docs = {}
+    for node, following in zip(body, body[1:], strict=False):
+        if (
+            isinstance(node, ast.AnnAssign)
+            and isinstance(node.target, ast.Name)
+            and isinstance(following, ast.Expr)
+            and isinstance(following.value, ast.Constant)
+            and isinstance(following.value.value, str)
+        ):
+            docs[node.target.id] = " ".join(following.value.value.split())
+    return docs

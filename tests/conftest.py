@@ -34,3 +34,20 @@ def gl_backend():
     if not ok:
         pytest.skip("no usable OpenGL backend: " + why.replace("\n", " | "))
     return backend
+
+
+@pytest.fixture(scope="session")
+def undocumented_metrics():
+    """A function: the keys of metrics rows that docs/METRICS.md does not list (a per-mode
+    key `eval/success/3` counts as its pattern `eval/success/<k>`)."""
+    import pathlib
+    import re
+
+    text = (pathlib.Path(__file__).resolve().parents[1] / "docs" / "METRICS.md").read_text()
+    documented = set(re.findall(r"^\| `([^`]+)` \|", text, flags=re.MULTILINE))
+
+    def check(rows: list[dict]) -> set[str]:
+        keys = {re.sub(r"/\d+$", "/<k>", k) for row in rows for k in row}
+        return keys - documented
+
+    return check

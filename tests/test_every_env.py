@@ -13,7 +13,7 @@ from d2c_jax.training import cli, loop
 
 
 @pytest.mark.parametrize("env_name", envs.ENV_NAMES)
-def test_tiny_preset_trains_and_evaluates(env_name, tmp_path):
+def test_tiny_preset_trains_and_evaluates(env_name, tmp_path, undocumented_metrics):
     cfg, _, _ = cli.parse_args(["--env", env_name, "--preset", "tiny"])
     out = tmp_path / "run"
     assert loop.train(cfg, out, quiet=True) == 0
@@ -21,6 +21,7 @@ def test_tiny_preset_trains_and_evaluates(env_name, tmp_path):
 
     rows = logging_lib.read_metrics(out / "metrics.jsonl")
     assert [r["iteration"] for r in rows] == [1, 2]
+    assert not undocumented_metrics(rows)  # every key it writes is in docs/METRICS.md
     last = rows[-1]
     env = envs.make(env_name)
     assert all(f"eval/success/{k}" in last for k in range(env.n_modes))

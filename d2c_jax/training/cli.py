@@ -2,6 +2,9 @@
 
     python train.py --env medium_maze [--algo ALGO] [--preset quick] [--seed S] [--seeds N]
         [--total-steps N] [--out DIR] [--resume] [--sac.batch-size 256 ...]
+        [--log tensorboard|wandb]
+    python train.py --config RUN_DIR/config.json [--seed 3 ...]   # a new run of a saved config
+    python train.py --help                       # every flag and config field, by section
 
 Any config field can be overridden as `--<section>.<field-with-dashes> VALUE`
 (tuples comma-separated: `--sac.hidden-sizes 256,256`). Bad input exits with status 2
@@ -12,6 +15,7 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
+import json
 import pathlib
 import sys
 import types
@@ -86,28 +90,50 @@ class _Parser(argparse.ArgumentParser):
         raise UsageError(message)
 
 
-def _parser() -> argparse.ArgumentParser:
+def _parser(with_fields: bool = False) -> argparse.ArgumentParser:
+    """The options of train.py; `with_fields` adds every config field (for --help only:
+    the fields are parsed by `apply_override`, which knows their types)."""
     parser = _Parser(
         prog="train.py",
-        description="Train D2C. Any config field: --<section>.<field> VALUE (see config.py).",
+        usage="%(prog)s (--env ENV | --config RUN_DIR/config.json) [options] "
+        "[--<section>.<field> VALUE ...]",
+        description="Train D2C or a baseline (README.md). Any config field can be set as "
+        "--<section>.<field> VALUE; tuples comma-separated.",
+        epilog="Defaults of the config fields are TrainConfig()'s (medium_maze, paper "
+        "preset); the presets and --algo change some of them. Bad input exits with status 2.",
         add_help=True,
     )
-    parser.add_argument("--env", required=True, help="environment id")
+    parser.add_argument("--env", default=None, help="environment id: " + ", ".join(_env_ids()))
+    parser.add_argument(
+        "--config",
+        default=None,
+        metavar="RUN_DIR/config.json",
+        help="start a new run from a saved config (its env, preset and algo; flags given "
+        "here override its fields)",
+    )
     parser.add_argument(
         "--preset",
         default=None,
+        metavar="NAME",
         help="paper | quick | tiny (default: paper with an accelerator, quick without)",
     )
     parser.add_argument(
         "--algo",
         default=None,
+        metavar="NAME",
         help=f"{' | '.join(config_lib.ALGO_NAMES)}: D2C or a baseline on the same SAC, HER "
         "and pool (default d2c; docs/BASELINES.md)",
     )
-    parser.add_argument("--seed", type=int, default=None, help="first seed S")
-    parser.add_argument("--seeds", type=int, default=None, help="N seeds S..S+N-1, vmapped")
-    parser.add_argument("--total-steps", type=int, default=None, help="env steps to train")
-    parser.add_argument("--out", default=None, help="run directory")
+    parser.add_argument("--seed", type=int, default=None, metavar="S", help="first seed S (0)")
+    parser.add_argument(
+        "--seeds", type=int, default=None, metavar="N", help="N seeds S..S+N-1, vmapped (1)"
+    )
+    parser.add_argument(
+        "--total-steps", type=int, default=None, metavar="N", help="env steps to train"
+    )
+    parser.add_argument(
+        "--out", default=None, metavar="DIR", help="run directory (runs/<env>-<preset>-<seed>)"
+    )
     parser.add_argument("--resume", action="store_true", help="continue the run in --out")
     parser.add_argument(
         "--sweep",
@@ -117,6 +143,15 @@ def _parser() -> argparse.ArgumentParser:
         help="sweep a hyperparameter (repeatable): every combination of the values, each "
         "with seeds S..S+N-1, runs as one program; e.g. classifier.diversity-weight=0,1",
     )
+    _add_process_options(parser)
+    _add_logging_options(parser)
+    if with_fields:
+        _add_field_groups(parser, config_lib.TrainConfig())
+    return parser
+
+
+def _add_process_options(parser: argparse.ArgumentParser) -> None:
+    """The options of a multi-process job (`parse_processes`)."""
     hosts = parser.add_argument_group(
         "several processes (hosts)", "each process runs its share of the runs (README, Scaling out)"
     )
@@ -128,7 +163,75 @@ def _parser() -> argparse.ArgumentParser:
         action="store_true",
         help="join a multi-process job whose settings the cluster scheduler sets (SLURM, ...)",
     )
-    return parser
+
+
+def _add_logging_options(parser: argparse.ArgumentParser) -> None:
+    """The logging sinks beside metrics.jsonl (`parse_loggers`)."""
+    logs = parser.add_argument_group(
+        "logging", "metrics.jsonl is always written; these add a sink beside it (extra: [log])"
+    )
+    logs.add_argument(
+        "--log",
+        action="append",
+        default=[],
+        metavar="SINK",
+        help="tensorboard (event files in RUN_DIR/tensorboard) or wandb (offline unless "
+        "WANDB_MODE=online; files in RUN_DIR/wandb); repeatable or comma-separated",
+    )
+    logs.add_argument("--wandb-project", default="d2c_jax", help="W&B project (default d2c_jax)")
+    logs.add_argument(
+        "--wandb-name", default=None, help="W&B run name (default: the run directory's name)"
+    )
+
+
+def _env_ids() -> tuple[str, ...]:
+    """The env ids without importing MJX (config lists the same ids as envs)."""
+    return tuple(config_lib.ENV_SETTINGS)
+
+
+def _add_field_groups(parser: argparse.ArgumentParser, cfg, prefix: str = "") -> None:
+    """One help group per config section, one entry per field: its doc and default."""
+    docs = config_lib.field_docs(type(cfg))
+    hints = _field_types(type(cfg))
+    title = prefix.rstrip(".") or "run"
+    group = parser.add_argument_group(
+        f"config: {title}", (type(cfg).__doc__ or "").strip().splitlines()[0]
+    )
+    sections = []
+    for field in dataclasses.fields(cfg):
+        value = getattr(cfg, field.name)
+        if dataclasses.is_dataclass(value):
+            sections.append((value, prefix + field.name + "."))
+            continue
+        dotted = prefix + field.name
+        if dotted in _CLI_FIELDS:  # shown with its own flag above
+            continue
+        flag = validation.flag_name(dotted)
+        default = validation.show_value(value)
+        group.add_argument(
+            flag,
+            metavar=_metavar(hints[field.name]),
+            help=f"{docs.get(field.name, '')} (default: {default})".replace("%", "%%"),
+        )
+    for section, section_prefix in sections:
+        _add_field_groups(parser, section, section_prefix)
+
+
+# Fields with their own option in `_parser` (not listed again among the config fields).
+_CLI_FIELDS = ("env", "preset", "algo", "seed", "num_seeds", "total_steps", "sweep")
+
+
+def _metavar(annotation) -> str:
+    """How a field's value is written: INT, FLOAT, BOOL, TEXT, a|b|c, or INT,INT,..."""
+    origin, args = typing.get_origin(annotation), typing.get_args(annotation)
+    if origin in (typing.Union, types.UnionType):
+        (inner,) = [a for a in args if a is not type(None)]
+        return _metavar(inner) + "|none"
+    if origin is typing.Literal:
+        return "|".join(map(str, args))
+    if origin is tuple:
+        return f"{_metavar(args[0])},..."
+    return {bool: "BOOL", int: "INT", float: "FLOAT"}.get(annotation, "TEXT")
 
 
 class Processes(typing.NamedTuple):
@@ -232,24 +335,10 @@ def parse_args(
       UsageError: for any bad input.
     """
     known, rest = _parser().parse_known_args(argv)
-    import envs  # after argparse, so --help stays fast
-
-    if known.env not in envs.ENV_NAMES:
-        raise UsageError(f"unknown env {known.env!r}; valid ids: {', '.join(envs.ENV_NAMES)}")
-    preset_name = known.preset
-    if preset_name is None:
-        import jax
-
-        preset_name, notice = default_preset(jax.default_backend())
-        if notice:
-            notify(notice)
-    try:
-        cfg = config_lib.preset(known.env, preset_name)
-        # The algo's fixed settings come before the overrides, so a flag that conflicts
-        # with them is seen (and refused by `validation`) rather than overwritten.
-        cfg = config_lib.with_algo(cfg, known.algo or "d2c")
-    except ValueError as err:
-        raise UsageError(str(err)) from None
+    if known.config is not None:
+        cfg = saved_config(known.config, known)
+    else:
+        cfg = _preset_config(known, notify)
     for flag, field in (("seed", "seed"), ("seeds", "num_seeds"), ("total_steps", "total_steps")):
         value = getattr(known, flag)
         if value is not None:
@@ -279,6 +368,104 @@ def parse_args(
     return cfg, out, known.resume
 
 
+def _preset_config(known: argparse.Namespace, notify) -> config_lib.TrainConfig:
+    """The config of --env, --preset (default: by the machine, said through `notify`) and
+    --algo, before any field override."""
+    import envs  # after argparse, so --help stays fast
+
+    if known.env is None:
+        raise UsageError("the following arguments are required: --env (or --config)")
+    if known.env not in envs.ENV_NAMES:
+        raise UsageError(f"unknown env {known.env!r}; valid ids: {', '.join(envs.ENV_NAMES)}")
+    preset_name = known.preset
+    if preset_name is None:
+        import jax
+
+        preset_name, notice = default_preset(jax.default_backend())
+        if notice:
+            notify(notice)
+    try:
+        cfg = config_lib.preset(known.env, preset_name)
+        # The algo's fixed settings come before the overrides, so a flag that conflicts
+        # with them is seen (and refused by `validation`) rather than overwritten.
+        return config_lib.with_algo(cfg, known.algo or "d2c")
+    except ValueError as err:
+        raise UsageError(str(err)) from None
+
+
+def saved_config(path_text: str, known: argparse.Namespace) -> config_lib.TrainConfig:
+    """The config in a saved config.json (a run directory names its own), for a new run.
+
+    --env, --preset and --algo may repeat the saved values but not change them: the
+    saved config already holds what they would set (the preset's sizes, the algo's
+    reward), so a new value would be half applied. Field flags override as usual.
+
+    Raises:
+      UsageError: no such file, not JSON, unknown fields, or a conflicting --env,
+        --preset or --algo. Values out of range are `validation`'s to refuse.
+    """
+    path = pathlib.Path(path_text)
+    if path.is_dir():
+        path = path / "config.json"
+    if not path.is_file():
+        raise UsageError(f"--config {path_text}: no such file")
+    try:
+        values = json.loads(path.read_text())
+    except (OSError, ValueError) as err:
+        reason = "not valid JSON" if isinstance(err, ValueError) else err.strerror
+        raise UsageError(f"--config {path}: cannot read it: {reason}") from None
+    unknown = config_lib.unknown_fields(config_lib.TrainConfig, values)
+    if unknown:
+        raise UsageError(f"--config {path}: unknown config fields: {', '.join(unknown)}")
+    try:
+        cfg = config_lib.from_dict(config_lib.TrainConfig, values)
+    except (TypeError, ValueError) as err:
+        raise UsageError(f"--config {path}: {err}") from None
+    for option in ("env", "preset", "algo"):
+        given = getattr(known, option)
+        if given is not None and given != getattr(cfg, option):
+            raise UsageError(
+                f"--{option} {given} conflicts with --config {path}, whose {option} is "
+                f"{getattr(cfg, option)}; drop --{option} or start from a preset"
+            )
+    return cfg
+
+
+def parse_loggers(argv: list[str]):
+    """The logging sinks of --log (`loggers.LoggerOptions`).
+
+    Raises:
+      UsageError: an unknown sink, or one whose package is not installed (the message
+        gives the pip command).
+    """
+    from d2c_jax.training import loggers
+
+    known, _ = _parser().parse_known_args(argv)
+    names = [n.strip() for text in known.log for n in text.split(",") if n.strip()]
+    for name in names:
+        if name not in loggers.LOGGER_NAMES:
+            raise UsageError(
+                f"--log {name}: unknown sink; valid: {', '.join(loggers.LOGGER_NAMES)}"
+            )
+    names = tuple(dict.fromkeys(names))  # each once, in the order given
+    problem = loggers.missing_extra(names)
+    if problem:
+        raise UsageError(problem)
+    if not known.wandb_project.strip():
+        raise UsageError("--wandb-project must not be empty")
+    return loggers.LoggerOptions(names, known.wandb_project, known.wandb_name)
+
+
+def wants_help(argv: list[str]) -> bool:
+    """True when the command line asks for help (-h or --help before any '--')."""
+    for arg in argv:
+        if arg == "--":
+            return False
+        if arg in ("-h", "--help"):
+            return True
+    return False
+
+
 def enable_compilation_cache() -> None:
     """Persists compiled programs (default ~/.cache/d2c_jax/xla), so --resume and repeated
     runs of the same config skip the compile. JAX_COMPILATION_CACHE_DIR overrides it."""
@@ -297,14 +484,18 @@ def main(argv: list[str] | None = None) -> int:
 
     enable_compilation_cache()
     argv = sys.argv[1:] if argv is None else argv
+    if wants_help(argv):
+        _parser(with_fields=True).print_help()
+        return 0
     try:
         processes = parse_processes(argv)
         if processes is not None:  # before anything starts a JAX backend
             from d2c_jax.training import placement
 
             placement.initialize_processes(*processes)
+        log = parse_loggers(argv)
         cfg, out, resume = parse_args(argv, notify=print)
-        return loop.train(cfg, out, resume=resume)
+        return loop.train(cfg, out, resume=resume, log=log)
     except UsageError as err:
         print(f"error: {err}", file=sys.stderr)
         return 2

@@ -21,6 +21,7 @@ from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn, Ti
 import envs
 from d2c_jax import config as config_lib
 from d2c_jax.training import agent as agent_lib
+from d2c_jax.training import loggers as loggers_lib
 from d2c_jax.training import logging as logging_lib
 from d2c_jax.training import placement, runs, sweep
 from d2c_jax.training.runs import RunError  # noqa: F401  (raised here; the CLI catches it)
@@ -133,9 +134,17 @@ class Stopwatch:
 # --- the loop ---------------------------------------------------------------------------
 
 
-def train(cfg: config_lib.TrainConfig, out, resume: bool = False, quiet: bool = False) -> int:
+def train(
+    cfg: config_lib.TrainConfig,
+    out,
+    resume: bool = False,
+    quiet: bool = False,
+    log: loggers_lib.LoggerOptions | None = None,
+) -> int:
     """Runs (or resumes) training into run directory `out`; returns the exit status
     (0, or 128 + the signal that stopped it).
+
+    `log` names the sinks (TensorBoard, W&B) that get every row besides metrics.jsonl.
 
     The run axis (arms x seeds) is split over this job's processes and devices
     (`placement`); with several processes, process 0 writes config.json, metrics.jsonl
@@ -176,12 +185,17 @@ def train(cfg: config_lib.TrainConfig, out, resume: bool = False, quiet: bool = 
             evaluate=agent_lib.jit_evaluate(agent, mesh, n).lower(ts, keys).compile(),
         )
         writer = logging_lib.MetricsWriter(out / "metrics.jsonl") if lead else None
+        sinks = None
+        if lead and log is not None and log.names:
+            sinks = loggers_lib.Loggers(out, cfg, log, layout.n_runs)
         try:
-            loop = _Loop(agent, layout, mesh, steps, ckpt, writer, clock)
+            loop = _Loop(agent, layout, mesh, steps, ckpt, _Output(out, env, writer, sinks), clock)
             status = loop.run(ts, start, quiet)
         finally:
             if writer is not None:
                 writer.close()
+            if sinks is not None:
+                sinks.close()
     finally:
         ckpt.close()
     if lead:
@@ -194,6 +208,27 @@ class _Compiled(NamedTuple):
 
     train: object
     evaluate: object
+
+
+class _Output(NamedTuple):
+    """Where the lead process's rows go: metrics.jsonl and the optional sinks (both None
+    on the other processes)."""
+
+    out: pathlib.Path
+    env: object
+    writer: logging_lib.MetricsWriter | None
+    sinks: loggers_lib.Loggers | None
+
+    def write(self, row: dict) -> None:
+        """metrics.jsonl first (the plots read it), then, at an evaluation row, the live
+        success and curriculum plots, then the sinks."""
+        if self.writer is None:
+            return
+        self.writer.write(row)
+        if self.sinks is not None:
+            if "eval/success" in row:
+                runs.write_plots(self.out, self.env, names=loggers_lib.EVAL_IMAGES)
+            self.sinks.write(row)
 
 
 def memory_problem(agent: agent_lib.Agent, layout: placement.RunLayout) -> str | None:
@@ -245,9 +280,9 @@ def _initial_state(agent, layout, mesh, ckpt, out: pathlib.Path, resume: bool):
 class _Loop:
     """Iterations of one process: step, gather, evaluate, write, checkpoint."""
 
-    def __init__(self, agent, layout, mesh, steps: _Compiled, ckpt, writer, clock):
+    def __init__(self, agent, layout, mesh, steps: _Compiled, ckpt, output: _Output, clock):
         self.agent, self.layout, self.mesh, self.steps = agent, layout, mesh, steps
-        self.ckpt, self.writer, self.clock = ckpt, writer, clock
+        self.ckpt, self.output, self.clock = ckpt, output, clock
 
     def run(self, ts, start: int, quiet: bool) -> int:
         """Iterations start..total (or until a stop signal); returns the exit status."""
@@ -265,8 +300,7 @@ class _Loop:
                 if is_eval_iteration(it + 1, sched) or last:
                     row.update(self._evaluation(ts, it + 1))
                 lap = self.clock.lap()
-                if self.writer is not None:
-                    self.writer.write(_row(it + 1, sched, row, lap, self.clock, timing))
+                self.output.write(_row(it + 1, sched, row, lap, self.clock, timing))
                 if timing and not quiet:  # the first iteration of this process
                     left = (sched.total_iterations - it - 1) * lap / 60
                     progress.console.print(f"  estimated time to finish: {left:.1f} min")
