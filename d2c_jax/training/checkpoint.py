@@ -64,6 +64,11 @@ class Checkpointer:
         with _quiet_orbax():
             return self._manager.latest_step()
 
+    def all_steps(self) -> list[int]:
+        """The steps of every complete checkpoint kept, oldest first."""
+        with _quiet_orbax():
+            return sorted(self._manager.all_steps())
+
     def save(self, step: int, tree) -> None:
         """Writes `tree` at `step` and waits until it is on disk."""
         self._manager.save(step, args=ocp.args.StandardSave(_to_storable(tree)), force=True)
@@ -115,12 +120,13 @@ class HostCheckpointer:
     def _path(self, step: int) -> pathlib.Path:
         return self.directory / f"step-{step}.npz"
 
-    def _steps(self) -> list[int]:
+    def all_steps(self) -> list[int]:
+        """The steps of every checkpoint kept, oldest first."""
         names = (p.name for p in self.directory.glob("step-*.npz"))
         return sorted(int(n[len("step-") : -len(".npz")]) for n in names)
 
     def latest_step(self) -> int | None:
-        steps = self._steps()
+        steps = self.all_steps()
         return steps[-1] if steps else None
 
     def save(self, step: int, tree) -> None:
@@ -131,7 +137,7 @@ class HostCheckpointer:
             f.flush()
             os.fsync(f.fileno())
         tmp.replace(self._path(step))
-        for old in self._steps()[: -self.max_to_keep]:
+        for old in self.all_steps()[: -self.max_to_keep]:
             self._path(old).unlink(missing_ok=True)
 
     def restore(self, step: int, like):

@@ -85,7 +85,10 @@ def apply_override(cfg, dotted: str, text: str, flag: str | None = None):
     return dataclasses.replace(cfg, **{head: _convert(text, hints[head], flag)})
 
 
-class _Parser(argparse.ArgumentParser):
+class Parser(argparse.ArgumentParser):
+    """argparse with its errors raised as `UsageError` (one line, exit 2), not printed
+    with the usage and exited; train.py's and the run commands' parser."""
+
     def error(self, message):  # argparse's own errors: one line, exit 2 via UsageError
         raise UsageError(message)
 
@@ -93,7 +96,7 @@ class _Parser(argparse.ArgumentParser):
 def _parser(with_fields: bool = False) -> argparse.ArgumentParser:
     """The options of train.py; `with_fields` adds every config field (for --help only:
     the fields are parsed by `apply_override`, which knows their types)."""
-    parser = _Parser(
+    parser = Parser(
         prog="train.py",
         usage="%(prog)s (--env ENV | --config RUN_DIR/config.json) [options] "
         "[--<section>.<field> VALUE ...]",

@@ -5,6 +5,7 @@ module creates and checks one (before anything compiles), opens its checkpoints,
 trained run (config, env, newest state) and holds the two commands that read runs:
 
     python -m d2c_jax.render RUN_DIR [--out RUN_DIR/policy.gif] [--still strip.png]
+        [--html policy.html]
     python -m d2c_jax.plots RUN_DIR
     python -m d2c_jax.plots compare RUN_DIR [RUN_DIR ...] [--out compare.png]
 """
@@ -19,6 +20,7 @@ import pathlib
 import sys
 
 import jax
+import numpy as np
 
 import envs
 from d2c_jax import config as config_lib
@@ -27,6 +29,7 @@ from d2c_jax.training import agent as agent_lib
 from d2c_jax.training import checkpoint as checkpoint_lib
 from d2c_jax.training import logging as logging_lib
 from d2c_jax.training import placement
+from d2c_jax.viewing import html as viewer_html
 from d2c_jax.viewing import plots, render
 
 
@@ -186,15 +189,17 @@ def save_state(ckpt: checkpoint_lib.Checkpointer, iteration: int, ts) -> None:
 
 
 def restore_or_fail(
-    ckpt: checkpoint_lib.Checkpointer, like, out: pathlib.Path, layout=None
+    ckpt: checkpoint_lib.Checkpointer, like, out: pathlib.Path, layout=None, step=None
 ) -> tuple[int, object]:
-    """(iteration, state) of the newest checkpoint (with several processes: the newest
-    that every process has), restored into `like`'s shapes and shardings with `like`'s
-    hyperparameters, on `like`'s devices; RunError(2) when none or unreadable."""
-    step = ckpt.latest_step()
-    if layout is not None:
-        step = placement.min_over_processes(layout, -1 if step is None else step)
-        step = None if step < 0 else step
+    """(iteration, state) of the checkpoint at `step` (default: the newest; with several
+    processes: the newest that every process has), restored into `like`'s shapes and
+    shardings with `like`'s hyperparameters, on `like`'s devices; RunError(2) when none
+    or unreadable."""
+    if step is None:
+        step = ckpt.latest_step()
+        if layout is not None:
+            step = placement.min_over_processes(layout, -1 if step is None else step)
+            step = None if step < 0 else step
     if step is None:
         raise RunError(f"nothing to resume: no checkpoint in {checkpoint_dir(out, layout)}", 2)
     try:
@@ -227,20 +232,58 @@ def read_config(run_dir) -> config_lib.TrainConfig:
     return config_lib.from_dict(config_lib.TrainConfig, values)
 
 
-def load_run(run_dir):
-    """(cfg, env, ts) of a run directory: config.json and the newest checkpoint of every
-    process that wrote one, on this process's first device.
+def load_run(run_dir, step: int | None = None):
+    """(cfg, env, ts) of a run directory: config.json and the checkpoint at iteration
+    `step` (default: the newest) of every process that wrote one, on this process's
+    first device (`restore_runs`).
 
     ts is the TrainState with a leading run axis (arms x seeds, run order; padding rows
     dropped).
 
     Raises:
-      RunError(2): no config.json, no checkpoint, or an unreadable one.
+      RunError(2): no config.json, no checkpoint (at `step`), or an unreadable one.
     """
-    run_dir = pathlib.Path(run_dir)
     cfg = read_config(run_dir)
     env = envs.make(cfg.env)
-    agent = agent_lib.Agent(cfg, env)
+    return cfg, env, restore_runs(agent_lib.Agent(cfg, env), run_dir, step)[1]
+
+
+def checkpoint_steps(run_dir, n_runs: int) -> list[int]:
+    """The iterations, oldest first, with a checkpoint of every process that wrote the
+    checkpoints of `run_dir` (a run of `n_runs` runs); the checkpointer keeps the last 3."""
+    run_dir = pathlib.Path(run_dir)
+    saved = saved_layout(run_dir, n_runs)
+    common = None
+    for p in range(saved.n_processes):
+        ckpt = open_checkpointer(run_dir, dataclasses.replace(saved, process_index=p))
+        try:
+            steps = set(ckpt.all_steps())
+        finally:
+            ckpt.close()
+        common = steps if common is None else common & steps
+    return sorted(common)
+
+
+def restore_runs(agent: agent_lib.Agent, run_dir, step: int | None = None):
+    """(iteration, ts): every run's state at iteration `step` (default: the newest that
+    every process checkpointed), gathered from the processes' checkpoints on this
+    process's first device; ts has a leading run axis (run order, no padding rows).
+
+    Raises:
+      RunError(2): no checkpoint, none at `step` (the message lists those there are),
+        or an unreadable one.
+    """
+    run_dir = pathlib.Path(run_dir)
+    available = checkpoint_steps(run_dir, agent.num_runs)
+    if not available:
+        raise RunError(f"{run_dir} has no checkpoint (in {checkpoint_dir(run_dir)})", 2)
+    if step is None:
+        step = available[-1]
+    elif step not in available:
+        listed = ", ".join(map(str, available))
+        raise RunError(
+            f"{run_dir} has no checkpoint of iteration {step}; it has iterations {listed}", 2
+        )
     saved = saved_layout(run_dir, agent.num_runs)
     parts = []
     for p in range(saved.n_processes):
@@ -248,11 +291,11 @@ def load_run(run_dir):
         ckpt = open_checkpointer(run_dir, layout)
         try:
             like = agent.init_runs(layout.local_run_ids())
-            parts.append(restore_or_fail(ckpt, like, run_dir)[1])
+            parts.append(restore_or_fail(ckpt, like, run_dir, step=step)[1])
         finally:
             ckpt.close()
     rows = jax.numpy.asarray(saved.gathered_rows())
-    return cfg, env, jax.tree.map(lambda *xs: jax.numpy.concatenate(xs)[rows], *parts)
+    return step, jax.tree.map(lambda *xs: jax.numpy.concatenate(xs)[rows], *parts)
 
 
 def trained_policy(cfg, env, ts, seed_index: int = 0):
@@ -261,13 +304,21 @@ def trained_policy(cfg, env, ts, seed_index: int = 0):
     return sac.make_policy(networks.make_networks(cfg.sac, env), sac_state, env, deterministic=True)
 
 
-def write_plots(out: pathlib.Path, env) -> None:
+def write_plots(out: pathlib.Path, env, names: tuple[str, ...] | None = None) -> None:
     """The run's plots from its metrics.jsonl: success per mode, curriculum goals over the
     map (paper Fig. 8), curriculum distance and, for several runs (a sweep or
-    num_seeds > 1), eval success per sweep arm (sweep_success.png)."""
+    num_seeds > 1), eval success per sweep arm (sweep_success.png).
+
+    `names` draws only those of "success", "curriculum" (the live plots the loggers send
+    at evaluation rows); None draws all.
+    """
     rows = logging_lib.read_metrics(out / "metrics.jsonl")
-    plots.success_curve(rows, env.n_modes, out / "plots" / "success.png")
-    plots.curriculum_snapshots(rows, env, out / "plots" / "curriculum.png")
+    if names is None or "success" in names:
+        plots.success_curve(rows, env.n_modes, out / "plots" / "success.png")
+    if names is None or "curriculum" in names:
+        plots.curriculum_snapshots(rows, env, out / "plots" / "curriculum.png")
+    if names is not None:
+        return
     plots.metric_curve(rows, "curriculum/distance", out / "plots" / "curriculum_distance.png")
     cfg = read_config(out)
     sweep = getattr(cfg, "sweep", ())  # a config from before sweeps: one arm
@@ -286,13 +337,15 @@ def render_policy(
     height: int = 240,
     fps: float = 20.0,
     still=None,
+    html=None,
 ) -> pathlib.Path:
     """Renders a trained run's policy reaching each goal mode: one tile per mode, one video.
 
     With `still` (a .png path), also writes `still_strip` of the same episodes: one row per
-    mode, five moments of its episode.
+    mode, five moments of its episode. With `html` (a .html path), also writes the same
+    episodes in brax's interactive 3-D viewer (`viewing.html`), one viewer per mode.
 
-    Returns the path written (default RUN_DIR/policy.gif).
+    Returns the path of the video (default RUN_DIR/policy.gif).
     """
     cfg, env, ts = load_run(run_dir)
     n_runs = ts.iteration.shape[0]
@@ -304,11 +357,26 @@ def render_policy(
     # One episode per mode from the episode loop (the modes as an argument, not constants).
     episodes = jax.jit(lambda goals, k: rollout.trajectories(env, policy, goals, k))
     trace = episodes(env.goal_points, jax.random.key(key))  # (n_modes, H + 1, ...)
+    if html is not None:
+        page = viewer_html.rollout_html(env, trace, titles=mode_titles(env, trace), fps=fps)
+        viewer_html.save_html(page, html)
     frames = render.render_frames(env, trace, width=width, height=height)  # (n_modes, H+1, h, w, 3)
     if still is not None:
         render.save_image(render.still_strip(frames), still)
     out = pathlib.Path(run_dir) / "policy.gif" if out is None else out
     return render.save_video(render.tile(frames), out, fps=fps)
+
+
+def mode_titles(env, trace) -> list[str]:
+    """A heading per episode of a Trace with one episode per goal mode: the mode, its
+    goal, and the first step that reaches it."""
+    titles = []
+    for k, (goal, success) in enumerate(zip(env.goal_points, trace.success, strict=True)):
+        hits = np.flatnonzero(np.asarray(success))
+        reached = f"reached at step {hits[0]}" if hits.size else "not reached"
+        point = ", ".join(f"{float(x):.2f}" for x in np.asarray(goal))
+        titles.append(f"mode {k}: goal ({point}), {reached}")
+    return titles
 
 
 def render_main(argv=None) -> int:
@@ -322,6 +390,9 @@ def render_main(argv=None) -> int:
     parser.add_argument("--size", type=int, default=240, help="tile width and height")
     parser.add_argument("--fps", type=float, default=20.0)
     parser.add_argument("--still", default=None, help="also a still strip (.png): 5 moments")
+    parser.add_argument(
+        "--html", default=None, help="also the episodes in an interactive 3-D viewer (.html)"
+    )
     args = parser.parse_args(argv)
     try:
         path = render_policy(
@@ -332,11 +403,15 @@ def render_main(argv=None) -> int:
             height=args.size,
             fps=args.fps,
             still=args.still,
+            html=args.html,
         )
-    except (RunError, RuntimeError) as err:
+    # OSError: an --out, --still or --html path that cannot be written.
+    except (RunError, RuntimeError, OSError) as err:
         print(f"error: {err}", file=sys.stderr)
         return 2
-    print(f"wrote {path}")
+    for written in (args.html, args.still, path):
+        if written is not None:
+            print(f"wrote {written}")
     return 0
 
 

@@ -6,7 +6,8 @@ episode loop (`d2c_jax.core.rollout.trajectories`); `d2c_jax.training.runs.rende
 (`python -m d2c_jax.render RUN_DIR`) renders a trained run's policy.
 
 Rendering is host side: each state's qpos (and mocap_pos, for the Sawyer gripper's mocap
-target) is copied into a CPU `mujoco.MjData`, `mj_forward` computes the geometry and a
+target) is copied into a CPU `mujoco.MjData`, `mj_forward` computes the geometry
+(`posed_data`, which the HTML viewer `d2c_jax.viewing.html` shares) and a
 `mujoco.Renderer` draws it. The training step never renders.
 
 OpenGL backend: importing this module has no side effect on it. The backend is chosen
@@ -243,6 +244,27 @@ def add_marker(scene: mujoco.MjvScene, point, radius: float, rgba) -> None:
 # --- frames -----------------------------------------------------------------------------
 
 
+def posed_data(model: mujoco.MjModel, qpos: np.ndarray, mocap_pos: np.ndarray):
+    """Yields one CPU `mujoco.MjData` of `model` per state, posed by `mj_forward`.
+
+    Args:
+      model: the model (not modified).
+      qpos: (N, nq) joint positions.
+      mocap_pos: (N, nmocap, 3) mocap body positions (the Sawyer gripper's target), or
+        (N, 0, 3) to leave them at the model's (a rollout given as qpos only).
+    Yields:
+      N times the same MjData, holding state i's geometry (xpos, xquat, geom_xpos...):
+      read it before taking the next.
+    """
+    data = mujoco.MjData(model)
+    for i in range(qpos.shape[0]):
+        data.qpos[:] = qpos[i]
+        if model.nmocap and mocap_pos.shape[1]:
+            data.mocap_pos[:] = mocap_pos[i]
+        mujoco.mj_forward(model, data)
+        yield data
+
+
 def _model_for(env, width: int, height: int) -> mujoco.MjModel:
     """A copy of env.mj_model to render with (the env's own model is never modified).
 
@@ -316,15 +338,10 @@ def render_frames(
         agent = np.asarray(traj.achieved_goal).reshape(qpos.shape[0], 2)
     camera = camera if camera is not None else default_camera(env, width, height)
     model = _model_for(env, width, height)
-    data = mujoco.MjData(model)
     radius = marker_radius(env)
     frames = np.empty((qpos.shape[0], height, width, 3), np.uint8)
     with make_renderer(model, width, height) as renderer:
-        for i in range(qpos.shape[0]):
-            data.qpos[:] = qpos[i]
-            if model.nmocap:
-                data.mocap_pos[:] = mocap[i]
-            mujoco.mj_forward(model, data)
+        for i, data in enumerate(posed_data(model, qpos, mocap)):
             renderer.update_scene(data, camera)
             if show_modes:
                 for point in np.asarray(env.goal_points):
