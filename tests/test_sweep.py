@@ -144,17 +144,18 @@ def test_every_sweepable_field_is_a_traced_input_of_the_step(field, medium_maze)
 
 
 def test_a_sweep_arm_with_seed_s_equals_the_single_run(tmp_path):
-    """The two switch-like fields (reward variant, value term on/off) x two seeds."""
+    """The two switch-like fields (reward variant, value term on/off), seed 1 (not the
+    default 0, so the run's seed reaches its arm)."""
     swept = train_in_process(
         tmp_path / "sweep",
-        "--seeds", "2",
+        "--seed", "1",
         "--sweep", "reward=intrinsic,sparse",
         "--sweep", "curriculum.goal-value-weight=0,1",
     )  # fmt: skip
-    # Arms: (intrinsic, 0), (intrinsic, 1), (sparse, 0), (sparse, 1); run = arm * 2 + seed.
-    # Arm (sparse, 1) with seed 1 holds both switches; each single run is a compile.
+    # Arms: (intrinsic, 0), (intrinsic, 1), (sparse, 0), (sparse, 1); run = arm (1 seed).
+    # Arm (sparse, 1) holds both switches; each single run is a compile.
     singles = {
-        7: train_in_process(
+        3: train_in_process(
             tmp_path / "a", "--reward", "sparse", "--curriculum.goal-value-weight", "1",
             "--seed", "1",
         ),
