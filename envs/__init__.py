@@ -64,4 +64,15 @@ def horizon(name: str) -> int:
     return _env_class(name)[0].horizon
 
 
-__all__ = ["ENV_NAMES", "EnvState", "GoalEnv", "goal_distance", "horizon", "make"]
+def to_brax(env: GoalEnv):
+    """`env` as a `brax.envs.Env` whose obs is the agent's goal-conditioned input and whose
+    reward is the sparse success reward (`envs.brax_adapter`, which says what is where).
+
+    Imported on first call: brax's import costs about a second, which `import envs` need not.
+    """
+    from envs.brax_adapter import to_brax as adapt
+
+    return adapt(env)
+
+
+__all__ = ["ENV_NAMES", "EnvState", "GoalEnv", "goal_distance", "horizon", "make", "to_brax"]
