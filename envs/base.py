@@ -153,6 +153,29 @@ class GoalEnv(abc.ABC):
         return self.clip_goal(u)
 
 
+def agent_input(env, obs: jax.Array, goal: jax.Array) -> jax.Array:
+    """The goal-conditioned input of a policy or value: (..., obs_dim), (..., goal_dim) ->
+    (..., feat_dim) float32.
+
+    concat(env.normalize_obs(obs), env.normalize_goal(goal)) (SPEC §4: fixed affine maps,
+    no running statistics). `obs` and `goal` broadcast against each other. Our networks
+    (`d2c_jax.core.networks.actor_input`) and the brax adapter both use it.
+    """
+    obs_feat = env.normalize_obs(obs)
+    goal_feat = env.normalize_goal(goal)
+    batch = jnp.broadcast_shapes(obs_feat.shape[:-1], goal_feat.shape[:-1])
+    obs_feat = jnp.broadcast_to(obs_feat, batch + obs_feat.shape[-1:])
+    goal_feat = jnp.broadcast_to(goal_feat, batch + goal_feat.shape[-1:])
+    return jnp.concatenate([obs_feat, goal_feat], axis=-1).astype(jnp.float32)
+
+
+def agent_input_dim(env) -> int:
+    """feat_dim of `agent_input` for this env (traced abstractly, no compute)."""
+    obs = jax.ShapeDtypeStruct((env.obs_dim,), jnp.float32)
+    goal = jax.ShapeDtypeStruct((env.goal_dim,), jnp.float32)
+    return jax.eval_shape(lambda o, g: agent_input(env, o, g), obs, goal).shape[-1]
+
+
 def goal_distance(a: jax.Array, b: jax.Array) -> jax.Array:
     """Euclidean distance over the last axis: (..., d), (..., d) -> (...,)."""
     return jnp.linalg.norm(a - b, axis=-1)

@@ -9,7 +9,7 @@
 
 What brax sees (one env; brax's `VmapWrapper` adds the batch axis):
   - obs (observation_size,) = concat(env.normalize_obs(obs), env.normalize_goal(goal)):
-    the goal-conditioned input of our actor and critic (`d2c_jax.core.networks.actor_input`);
+    the goal-conditioned input of our actor and critic (`envs.base.agent_input`);
   - reward () float32 = 1.0 when `state.success` after the step, else 0.0: the sparse
     success reward (SPEC §4's ablation, the reward of HER and of every sparse baseline);
   - done () float32 = 0 always. SPEC §4: reaching the goal is no terminal, and an episode
@@ -44,14 +44,7 @@ import jax
 import jax.numpy as jnp
 from brax.envs import base as brax_base
 
-from envs.base import EnvState, GoalEnv
-
-
-def goal_features(env: GoalEnv, state: EnvState) -> jax.Array:
-    """The agent's input: concat(normalize_obs(obs), normalize_goal(goal)), (..., feat_dim)."""
-    obs_feat = env.normalize_obs(state.obs)
-    goal_feat = env.normalize_goal(state.goal)
-    return jnp.concatenate([obs_feat, goal_feat], axis=-1).astype(jnp.float32)
+from envs.base import EnvState, GoalEnv, agent_input, agent_input_dim
 
 
 def sparse_reward(state: EnvState) -> jax.Array:
@@ -68,7 +61,7 @@ class BraxGoalEnv(brax_base.Env):
     def _state(self, env_state: EnvState, reward: jax.Array) -> brax_base.State:
         return brax_base.State(
             pipeline_state=env_state,
-            obs=goal_features(self.goal_env, env_state),
+            obs=agent_input(self.goal_env, env_state.obs, env_state.goal),
             reward=reward,
             done=jnp.zeros((), jnp.float32),
             metrics={"success": sparse_reward(env_state)},
@@ -91,15 +84,7 @@ class BraxGoalEnv(brax_base.Env):
     @property
     def observation_size(self) -> int:
         """feat_dim, from the shapes alone (no reset is compiled)."""
-        env = self.goal_env
-        fake = EnvState(
-            data=None,
-            obs=jax.ShapeDtypeStruct((env.obs_dim,), jnp.float32),
-            achieved_goal=jax.ShapeDtypeStruct((env.goal_dim,), jnp.float32),
-            goal=jax.ShapeDtypeStruct((env.goal_dim,), jnp.float32),
-            success=jax.ShapeDtypeStruct((), jnp.bool_),
-        )
-        return jax.eval_shape(lambda s: goal_features(env, s), fake).shape[-1]
+        return agent_input_dim(self.goal_env)
 
     @property
     def action_size(self) -> int:

@@ -24,6 +24,7 @@ import jax
 import jax.numpy as jnp
 
 from d2c_jax.config import SACConfig
+from envs import base as env_base
 
 N_CRITICS = 2
 """Members of the twin critic (clipped double-Q)."""
@@ -147,22 +148,15 @@ def make_networks(cfg: SACConfig, env) -> SACNetworks:
 def actor_input(env, obs: jax.Array, goal: jax.Array) -> jax.Array:
     """Network features: (..., obs_dim), (..., goal_dim) -> (..., feat_dim).
 
-    concat(env.normalize_obs(obs), env.normalize_goal(goal)) (SPEC §4: fixed affine maps,
-    no running statistics). `obs` and `goal` broadcast against each other.
+    concat(env.normalize_obs(obs), env.normalize_goal(goal)) (SPEC §4), defined once in
+    `envs.base.agent_input`, which the brax adapter shares.
     """
-    obs_feat = env.normalize_obs(obs)
-    goal_feat = env.normalize_goal(goal)
-    batch = jnp.broadcast_shapes(obs_feat.shape[:-1], goal_feat.shape[:-1])
-    obs_feat = jnp.broadcast_to(obs_feat, batch + obs_feat.shape[-1:])
-    goal_feat = jnp.broadcast_to(goal_feat, batch + goal_feat.shape[-1:])
-    return jnp.concatenate([obs_feat, goal_feat], axis=-1).astype(jnp.float32)
+    return env_base.agent_input(env, obs, goal)
 
 
 def feature_dim(env) -> int:
     """Width of `actor_input` for this env (traced abstractly, no compute)."""
-    obs = jax.ShapeDtypeStruct((env.obs_dim,), jnp.float32)
-    goal = jax.ShapeDtypeStruct((env.goal_dim,), jnp.float32)
-    return jax.eval_shape(lambda o, g: actor_input(env, o, g), obs, goal).shape[-1]
+    return env_base.agent_input_dim(env)
 
 
 # --- the squashed Gaussian --------------------------------------------------------------
