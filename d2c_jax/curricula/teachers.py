@@ -196,13 +196,13 @@ def pad_mixture(mixture: gmm.Mixture, k_max: int) -> gmm.Mixture:
     )
 
 
-def fit_best_mixture(
+def fit_every_k(
     x: jax.Array, k_max: int, key, t: config_lib.TeachersConfig
-) -> tuple[gmm.Mixture, jax.Array]:
-    """EM for k = 2..k_max components (at most one per row), the least AIC kept, padded
-    to k_max (weight 0). Returns (mixture, () bool some fit was usable).
+) -> tuple[list[gmm.Mixture], jax.Array]:
+    """EM for k = 2..k_max components (at most one per row): the fits, each padded to
+    k_max (weight 0), and their AIC (n_k,), inf where the fit is not usable.
 
-    A fit whose parameters or AIC are not finite is discarded: in float32 a component
+    A fit whose parameters or AIC are not finite is not usable: in float32 a component
     that collapses onto a few rows can leave a covariance Cholesky cannot factor
     (reg_covar 1e-6 is scikit-learn's float64 default), and argmin would pick its NaN."""
     fits, scores = [], []
@@ -216,10 +216,23 @@ def fit_best_mixture(
         )
         fits.append(pad_mixture(fitted, k_max))
         scores.append(jnp.where(usable, score, jnp.inf))
-    scores = jnp.stack(scores)
+    return fits, jnp.stack(scores)
+
+
+def least_aic(fits: list[gmm.Mixture], scores: jax.Array) -> tuple[gmm.Mixture, jax.Array]:
+    """The fit of least AIC among `fit_every_k`'s, and () bool: some fit was usable."""
     best = jnp.argmin(scores)
     mixture = jax.tree.map(lambda *xs: jnp.stack(xs)[best], *fits)
     return mixture, jnp.isfinite(scores[best])
+
+
+def fit_best_mixture(
+    x: jax.Array, k_max: int, key, t: config_lib.TeachersConfig
+) -> tuple[gmm.Mixture, jax.Array]:
+    """EM for k = 2..k_max components, the least AIC kept, padded to k_max (weight 0).
+    Returns (mixture, () bool some fit was usable); unusable fits never win
+    (`fit_every_k`)."""
+    return least_aic(*fit_every_k(x, k_max, key, t))
 
 
 class ALPGMMTeacher(Teacher):
