@@ -152,6 +152,7 @@ def assert_finite(params, metrics):
     assert metrics and all(np.isfinite(float(v)) for v in metrics.values())
 
 
+@pytest.mark.slow  # compiles brax's SAC (~19 s on 2 cores); the wrappers above stay default
 def test_brax_sac_trains_on_a_maze(medium_maze):
     """A few hundred env steps of brax's SAC through the adapter: finite params and
     metrics, the evaluation's success counted from our reward."""
