@@ -1,10 +1,12 @@
 """Regenerates benchmarks/RESULTS.md: every comparison, each measured in this one run.
 
-    pip install -e '.[bench]'      # the reference tools: SB3, gymnasium-robotics, PyTorch
+    pip install -e '.[bench]'      # SB3, gymnasium-robotics, PyTorch (brax is a core dependency)
     python -m benchmarks.run [--only throughput sac_update envs matching seeds sweep memory]
 
 Sections written (each names its command and the hardware):
-  "Training throughput vs SB3"  d2c_jax SAC+HER and D2C against SB3 SAC+HER (benchmarks.sb3)
+  "Training throughput vs SB3 and brax SAC"
+                                d2c_jax SAC+HER and D2C against SB3 SAC+HER (benchmarks.sb3)
+                                and brax SAC on the same MJX env (benchmarks.brax_sac)
   "SAC update"                  d2c_jax against PyTorch, against the CPU roofline
   "Environments"                MJX at batch 1/64/1024 against C MuJoCo (benchmarks.envs)
   "Matching"                    the auction against scipy and optax (benchmarks.matching)
@@ -15,45 +17,103 @@ The "Learning" section comes from training runs (benchmarks.learning_curve), not
 from __future__ import annotations
 
 import argparse
+import statistics
 import time
+from typing import NamedTuple
 
 import jax
 
+from benchmarks import brax_sac, matching, results, sac_update, sb3, trainer
 from benchmarks import envs as envs_bench
-from benchmarks import matching, results, sac_update, sb3, trainer
 from envs import ENV_NAMES
 
 PARTS = ("throughput", "sac_update", "envs", "matching", "seeds", "sweep", "memory")
 TARGET_VS_SB3 = {"paper": 1.4, "small": 2.5}
 """Issue targets: d2c_jax SAC+HER env steps/s over SB3's at identical settings."""
+TARGET_VS_BRAX = 1.0
+"""Issue 21's target: d2c_jax SAC+HER env steps/s over brax SAC's at identical sizes."""
+TIMED_ROUNDS = 5
+"""Timed brax epochs per size, each preceded by one timed round of each of our rows."""
+BRAX = "brax SAC (JAX)"
+SB3 = "SB3 SAC+HER (PyTorch)"
+
+
+class Throughput(NamedTuple):
+    """One size's rates: tool -> (env steps/s, SAC updates/s), the best round of each;
+    and, for each of our rows, the median over rounds of (our round / the brax epoch
+    right after it), the ratio a load drift between rounds cannot tilt."""
+
+    rates: dict[str, tuple[float, float]]
+    paired_vs_brax: dict[str, float]
+
+
+def throughput_rates(size: str) -> Throughput:
+    """SB3 SAC+HER, brax SAC, and our SAC+HER and D2C at SIZES[size].
+
+    Ours and brax alternate on the machine: before each of TIMED_ROUNDS timed brax epochs
+    (2,000 env steps), one timed round (2,000 env steps) of each of our rows runs.
+    """
+    reference = sb3.sb3_env_steps_per_s(size)
+    ours = {
+        variant: trainer.TimedRun(cfg) for variant, cfg in trainer.throughput_configs(size).items()
+    }
+    rounds: list[dict[str, float]] = []
+    brax = brax_sac.epoch_rates(
+        size,
+        timed_epochs=TIMED_ROUNDS,
+        after_epoch=lambda: rounds.append(trainer.alternate_rounds(ours)),
+    )
+    rates = {SB3: (reference, reference), BRAX: (max(brax),) * 2}
+    paired = {}
+    for variant, run in ours.items():
+        best = max(r[variant] for r in rounds)
+        rates[f"d2c_jax {variant}"] = (best, best * run.updates_per_env_step)
+        paired[f"d2c_jax {variant}"] = paired_ratio([r[variant] for r in rounds], brax)
+    return Throughput(rates, paired)
+
+
+def paired_ratio(ours: list[float], reference: list[float]) -> float:
+    """Median over rounds i of ours[i] / reference[i] (rates timed back to back): a load
+    that drifts between rounds moves both sides of a pair alike."""
+    return statistics.median(a / b for a, b in zip(ours, reference, strict=True))
 
 
 def throughput_section() -> str:
-    ours = trainer.throughput_rows()
     rows = [
-        "| size (hidden, batch) | tool | env steps/s | vs SB3 | target |",
-        "|---|---|---|---|---|",
+        "| size (hidden, batch) | tool | env steps/s | SAC updates/s | vs SB3 | vs brax SAC "
+        "(best / best) | vs brax SAC (paired median) | target |",
+        "|---|---|---|---|---|---|---|---|",
     ]
     for size in TARGET_VS_SB3:
         label = sac_update.size_label(size)
-        reference = sb3.sb3_env_steps_per_s(size)
-        rows.append(f"| {label} | SB3 SAC+HER (PyTorch) | {reference:,.1f} | 1.00x | |")
-        for variant in ("SAC+HER", "D2C"):
-            rate = ours[size, variant]
-            target = f">= {TARGET_VS_SB3[size]}x" if variant == "SAC+HER" else ""
-            ratio = rate / reference
-            rows.append(f"| {label} | d2c_jax {variant} | {rate:,.1f} | {ratio:.2f}x | {target} |")
-        print("\n".join(rows[-3:]), flush=True)
+        measured = throughput_rates(size)
+        sb3_rate, brax_rate = measured.rates[SB3][0], measured.rates[BRAX][0]
+        for tool, (rate, updates) in measured.rates.items():
+            target = ""
+            if tool == "d2c_jax SAC+HER":
+                target = f">= {TARGET_VS_SB3[size]}x SB3, >= {TARGET_VS_BRAX}x brax"
+            paired = measured.paired_vs_brax.get(tool)
+            paired_cell = "" if paired is None else f"{paired:.2f}x"
+            rows.append(
+                f"| {label} | {tool} | {rate:,.1f} | {updates:,.1f} | {rate / sb3_rate:.2f}x "
+                f"| {rate / brax_rate:.2f}x | {paired_cell} | {target} |"
+            )
+        print("\n".join(rows[-len(measured.rates) :]), flush=True)
     return "\n".join(
         [
             f"Command: `python -m benchmarks.run --only throughput` ({time.strftime('%Y-%m-%d')}).",
             f"Hardware: {results.hardware()}; jax {jax.__version__}.",
-            "SB3 on gymnasium-robotics `PointMaze_Medium-v3` (C MuJoCo, 1 env); d2c_jax on "
-            "`medium_maze` (4 envs per iteration, one compiled program). Identical settings: "
-            "the same network sizes, batch, one gradient step per env step, actor and target "
-            "every step. d2c_jax SAC+HER = D2C with sparse reward, goals from the desired "
-            "set and no classifier updates; D2C adds the classifier (16 updates per 2,000 "
-            "env steps), the matching curriculum and the intrinsic reward.",
+            "SB3 on gymnasium-robotics `PointMaze_Medium-v3` (C MuJoCo, 1 env); brax SAC and "
+            "d2c_jax on our MJX `medium_maze` (brax through `envs.to_brax`), 4 envs. Identical "
+            "settings: the same network sizes, batch, one gradient step per env step, actor, "
+            "alpha and target every step. d2c_jax SAC+HER = D2C with sparse reward, goals from "
+            "the desired set and no classifier updates; D2C adds the classifier (16 updates "
+            "per 2,000 env steps), the matching curriculum and the intrinsic reward. brax SAC "
+            "samples stored transitions (no HER). Rates: brax's `training/sps` of an epoch "
+            "of 2,000 env steps, and our rounds of 2,000 env steps (one matching cycle); "
+            f"before each of {TIMED_ROUNDS} timed brax epochs, one round of each of our rows "
+            "runs (`benchmarks.brax_sac`). env steps/s: the best round. Paired median: the "
+            "median over rounds of our round / the brax epoch right after it.",
             "",
             *rows,
         ]
@@ -70,7 +130,7 @@ def main(argv=None) -> int:
     parser.add_argument("--only", nargs="+", default=list(PARTS), choices=PARTS)
     args = parser.parse_args(argv)
     jobs = {
-        "throughput": ("Training throughput vs SB3", throughput_section),
+        "throughput": ("Training throughput vs SB3 and brax SAC", throughput_section),
         "sac_update": ("SAC update", lambda: sac_update.run(list(sac_update.SIZES))),
         "envs": ("Environments", lambda: envs_bench.run(ENV_NAMES, (1, 64, 1024), 3)),
         "matching": ("Matching", matching_section),

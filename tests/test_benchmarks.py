@@ -1,4 +1,5 @@
-"""The benchmark's own arithmetic: the SAC update's FLOP count and the results file."""
+"""The benchmark's own arithmetic (the SAC update's FLOP count, the results file, the
+paired ratio) and the brax SAC timing harness."""
 
 import jax
 import numpy as np
@@ -135,3 +136,26 @@ def test_reward_probe_reports_every_distance_and_all_pairs(tmp_path):
     pairs = [int(line.split(": ")[1].split(" pairs")[0]) for line in lines[-5:]]
     assert sum(pairs) == 500
     assert reward_probe.main([str(tmp_path / "missing")]) == 2
+
+
+def test_paired_ratio_is_the_median_of_back_to_back_ratios_by_hand():
+    from benchmarks import run
+
+    # Pairs: 60/200 = 0.3, 60/50 = 1.2, 80/100 = 0.8 -> median 0.8 (best/best would be 0.4).
+    assert run.paired_ratio([60.0, 60.0, 80.0], [200.0, 50.0, 100.0]) == pytest.approx(0.8)
+    with pytest.raises(ValueError):
+        run.paired_ratio([1.0, 2.0], [1.0])
+
+
+@pytest.mark.slow  # 15-25 s: compiles brax SAC's epoch; the adapter's default test runs brax SAC
+def test_brax_sac_epochs_alternate_with_the_callback():
+    """brax SAC trains on our maze through the adapter; the callback runs once before each
+    timed epoch, and the compiling epoch is not reported."""
+    from benchmarks import brax_sac
+
+    calls = []
+    rates = brax_sac.epoch_rates(
+        "small", timed_epochs=2, after_epoch=lambda: calls.append(1), steps_per_epoch=3
+    )
+    assert len(calls) == 2 and len(rates) == 2
+    assert all(np.isfinite(r) and r > 0 for r in rates)
