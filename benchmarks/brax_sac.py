@@ -31,11 +31,12 @@ from __future__ import annotations
 import argparse
 import functools
 import statistics
+import sys
 import time
 from typing import Callable
 
 import envs
-from benchmarks import brax_compat
+from benchmarks import brax_compat, results
 from benchmarks.sac_update import SIZES, size_label
 
 NUM_ENVS = 4
@@ -201,6 +202,9 @@ def main(argv=None) -> int:
     parser.add_argument("--bare", action="store_true", help="time the two updates alone")
     parser.add_argument("--rounds", type=int, default=7, help="--bare: alternating rounds")
     args = parser.parse_args(argv)
+    if args.rounds < 1:
+        print(f"--rounds must be >= 1, got {args.rounds}", file=sys.stderr)
+        return 2
     if args.bare:
         for size in args.sizes:
             ms = bare_update_ms(size, args.rounds, args.env)
@@ -208,7 +212,7 @@ def main(argv=None) -> int:
             for name, values in ms.items():
                 median = statistics.median(values)
                 print(f"{name} {size_label(size)}: median {median:.3f} ms/update")
-            ratio = statistics.median(b / o for o, b in zip(ours, brax, strict=True))
+            ratio = results.paired_ratio([1 / t for t in ours], [1 / t for t in brax])
             print(f"ours vs brax (updates/s, paired median): {ratio:.2f}x", flush=True)
         return 0
     for size in args.sizes:

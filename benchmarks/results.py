@@ -6,6 +6,7 @@ import os
 import pathlib
 import platform
 import re
+import statistics
 import subprocess
 
 import jax
@@ -31,6 +32,12 @@ def report(title: str, body: str, write: bool) -> None:
     print(body)
     if write:
         write_section(title, body)
+
+
+def paired_ratio(ours: list[float], reference: list[float]) -> float:
+    """Median over rounds i of ours[i] / reference[i], for rates timed back to back: a load
+    that drifts between rounds moves both sides of a pair alike."""
+    return statistics.median(a / b for a, b in zip(ours, reference, strict=True))
 
 
 def hardware() -> str:

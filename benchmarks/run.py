@@ -17,7 +17,6 @@ The "Learning" section comes from training runs (benchmarks.learning_curve), not
 from __future__ import annotations
 
 import argparse
-import statistics
 import time
 from typing import NamedTuple
 
@@ -68,14 +67,8 @@ def throughput_rates(size: str) -> Throughput:
     for variant, run in ours.items():
         best = max(r[variant] for r in rounds)
         rates[f"d2c_jax {variant}"] = (best, best * run.updates_per_env_step)
-        paired[f"d2c_jax {variant}"] = paired_ratio([r[variant] for r in rounds], brax)
+        paired[f"d2c_jax {variant}"] = results.paired_ratio([r[variant] for r in rounds], brax)
     return Throughput(rates, paired)
-
-
-def paired_ratio(ours: list[float], reference: list[float]) -> float:
-    """Median over rounds i of ours[i] / reference[i] (rates timed back to back): a load
-    that drifts between rounds moves both sides of a pair alike."""
-    return statistics.median(a / b for a, b in zip(ours, reference, strict=True))
 
 
 def throughput_section() -> str:

@@ -139,12 +139,10 @@ def test_reward_probe_reports_every_distance_and_all_pairs(tmp_path):
 
 
 def test_paired_ratio_is_the_median_of_back_to_back_ratios_by_hand():
-    from benchmarks import run
-
     # Pairs: 60/200 = 0.3, 60/50 = 1.2, 80/100 = 0.8 -> median 0.8 (best/best would be 0.4).
-    assert run.paired_ratio([60.0, 60.0, 80.0], [200.0, 50.0, 100.0]) == pytest.approx(0.8)
+    assert results.paired_ratio([60.0, 60.0, 80.0], [200.0, 50.0, 100.0]) == pytest.approx(0.8)
     with pytest.raises(ValueError):
-        run.paired_ratio([1.0, 2.0], [1.0])
+        results.paired_ratio([1.0, 2.0], [1.0])
 
 
 @pytest.mark.slow  # 15-25 s: compiles brax SAC's epoch; the adapter's default test runs brax SAC
