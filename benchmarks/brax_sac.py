@@ -115,13 +115,14 @@ def bare_update_ms(size: str, rounds: int, env_name: str = "medium_maze") -> dic
     from brax.training.agents.sac import losses as sac_losses
     from brax.training.agents.sac import networks as sac_networks
 
-    from benchmarks import trainer
+    from benchmarks.trainer import throughput_configs
     from d2c_jax.core import networks, sac
     from d2c_jax.core.types import Batch
+    from d2c_jax.training.agent import Agent
 
     hidden, batch = SIZES[size]
-    cfg = trainer.throughput_configs(size, env_name)["SAC+HER"]
-    agent = trainer.trainer.Agent(cfg, envs.make(env_name))
+    cfg = throughput_configs(size, env_name)["SAC+HER"]
+    agent = Agent(cfg, envs.make(env_name))
     env = agent.env
     feat_dim, act_dim = networks.feature_dim(env), env.action_dim
     keys = jax.random.split(jax.random.key(0), 4)
@@ -163,7 +164,9 @@ def bare_update_ms(size: str, rounds: int, env_name: str = "medium_maze") -> dic
         policy_opt=adam.init(policy), q_opt=adam.init(q), alpha_opt=adam.init(jnp.zeros(())),
     )  # fmt: skip
 
-    ts = jax.tree.map(lambda x: x[0], agent.init_seeds())
+    # Only SAC's state: the agent's replay buffer (3M transitions) plays no part here.
+    hp = sac.hyperparams(cfg.sac)
+    ours_state = sac.init_sac(agent.sac_nets, agent.sac_optimizers, env, hp, keys[3])
     raw = jax.random.normal(keys[3], (batch, env.obs_dim + env.goal_dim))
     ours_batch = jax.tree.map(  # one block of one update: leaves (1, B, ...)
         lambda x: x[None],
@@ -173,7 +176,7 @@ def bare_update_ms(size: str, rounds: int, env_name: str = "medium_maze") -> dic
 
     def ours_update(s, key):
         s, _ = sac.update_sac_block(
-            cfg.sac, agent.sac_nets, agent.sac_optimizers, ts.hparams.sac, s, ours_batch, env, key
+            cfg.sac, agent.sac_nets, agent.sac_optimizers, hp, s, ours_batch, env, key
         )
         return s, None
 
@@ -182,7 +185,7 @@ def bare_update_ms(size: str, rounds: int, env_name: str = "medium_maze") -> dic
 
     loops = {
         "brax SAC": (looped(brax_update), brax_state),
-        "d2c_jax": (looped(ours_update), ts.sac),
+        "d2c_jax": (looped(ours_update), ours_state),
     }
     for loop, state in loops.values():
         jax.block_until_ready(loop(state, keys[0]))
