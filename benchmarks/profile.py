@@ -73,7 +73,7 @@ def part_seconds(cfg: config.TrainConfig, env, repeats: int = 3) -> dict[str, fl
         return rollout.collect(env, actor, keep_goal, goals, cfg.num_envs, key, switch_every)
 
     n_blocks = sched.sac_updates // sac.block_size(cfg.sac)
-    sac_updates = jax.jit(lambda ts, key: trainer.scan_updates(agent.sac_block, ts, n_blocks, key))
+    sac_updates = jax.jit(lambda ts, key: agent.sac_blocks(ts, n_blocks, key))
     classifier_updates = jax.jit(
         lambda ts, key: trainer.scan_updates(
             agent.classifier_update, ts, sched.classifier_updates, key

@@ -445,3 +445,45 @@ def test_over_runs_equals_vmap_with_and_without_a_size_one_axis():
         got = agent_lib.over_runs(fn, n, in_axes=(0, None))(tree, 2.0)
         assert jax.tree.map(jnp.shape, got) == jax.tree.map(jnp.shape, want)
         jax.tree.map(lambda g, w: np.testing.assert_allclose(g, w, rtol=1e-6), got, want)
+
+
+def test_sac_blocks_drawn_ahead_equal_a_block_by_block_loop(medium_maze, monkeypatch):
+    """`Agent.sac_blocks` draws HER transitions a chunk at a time (here 3 blocks, so 7
+    blocks are 2 chunks and a remainder of 1): the SAC state equals that of a loop that
+    draws each block's batches (`her.relabel`, D2C's intrinsic reward) from the i-th key,
+    then updates."""
+    import jax
+
+    from d2c_jax.core import her, sac
+
+    monkeypatch.setattr(agent_lib, "_SAMPLE_CHUNK", 3)
+    cfg = config.preset("medium_maze", "tiny")
+    agent = agent_lib.Agent(cfg, medium_maze)
+    ts, _ = jax.jit(agent.step)(agent.init(jax.random.key(0)))  # a buffer of random episodes
+    n, key = 7, jax.random.key(1)
+
+    def block_by_block(ts):
+        reward_fn = agent.reward_fn(ts)
+        hp, block = ts.hparams, sac.block_size(cfg.sac)
+
+        def one(sac_state, k):
+            k_draw, k_update = jax.random.split(k)
+            batches = jax.vmap(
+                lambda kb: her.relabel(
+                    hp.relabel_prob, ts.replay, cfg.sac.batch_size, reward_fn, kb
+                )
+            )(jax.random.split(k_draw, block))
+            return sac.update_sac_block(
+                cfg.sac, agent.sac_nets, agent.sac_optimizers, hp.sac, sac_state, batches,
+                agent.env, k_update,
+            )  # fmt: skip
+
+        return jax.lax.scan(one, ts.sac, jax.random.split(key, n))[0]
+
+    drawn_ahead = jax.jit(lambda ts: agent.sac_blocks(ts, n, key)[0].sac)(ts)
+    reference = jax.jit(block_by_block)(ts)
+    assert int(drawn_ahead.step - ts.sac.step) == n * sac.block_size(cfg.sac)
+    moved = jax.tree.leaves(ts.sac.critic_params)[0] - jax.tree.leaves(reference.critic_params)[0]
+    assert float(abs(moved).max()) > 1e-4  # the updates changed the critic
+    for a, b in zip(jax.tree.leaves(drawn_ahead), jax.tree.leaves(reference), strict=True):
+        np.testing.assert_allclose(np.asarray(a), np.asarray(b), rtol=0, atol=1e-6)

@@ -5,10 +5,13 @@
 same episode, t' uniform in [t + 1, H]; otherwise it keeps the goal that was active at
 step t. The reward of every sampled transition is then recomputed by `reward_fn(ag_next,
 goal)`, so the sparse reward and D2C's intrinsic reward p_pseudo(phi(s_{t+1}); g) plug
-in the same way.
+in the same way. Its two halves, `sample_relabelled` and `with_reward`, let the trainer
+draw many batches at once and reward each one when it is used.
 """
 
 from __future__ import annotations
+
+from typing import NamedTuple
 
 import jax
 import jax.numpy as jnp
@@ -40,6 +43,60 @@ def future_goals(state: replay.ReplayState, episode: jax.Array, step: jax.Array,
     return state.achieved_goal[episode, future]
 
 
+class RelabelledTransitions(NamedTuple):
+    """Sampled transitions with their (possibly relabelled) goals, before any reward."""
+
+    obs: jax.Array  # (B, obs_dim) s_t
+    action: jax.Array  # (B, action_dim) a_t
+    next_obs: jax.Array  # (B, obs_dim) s_{t+1}
+    next_achieved_goal: jax.Array  # (B, goal_dim) phi(s_{t+1})
+    goal: jax.Array  # (B, goal_dim) the goal after relabelling
+
+
+def sample_relabelled(
+    relabel_prob: jax.Array | float,
+    state: replay.ReplayState,
+    batch_size: int,
+    key: jax.Array,
+    walk_fraction: float = 0.0,
+) -> RelabelledTransitions:
+    """Samples `batch_size` transitions and relabels their goals ("future" strategy).
+
+    Args:
+      relabel_prob: probability of relabelling a transition's goal (HERConfig; a
+        traced value in the trainer, so a sweep can vmap over it).
+      state: a non-empty replay buffer.
+      batch_size: B.
+      key: PRNG key.
+      walk_fraction: share of the batch from random-walk transitions (`replay.sample`).
+    Returns:
+      RelabelledTransitions with leading axis B.
+    """
+    key_sample, key_future, key_coin = jax.random.split(key, 3)
+    tr = replay.sample(state, batch_size, key_sample, walk_fraction)
+    future = future_goals(state, tr.episode, tr.step, key_future)
+    use_future = jax.random.bernoulli(key_coin, relabel_prob, (batch_size,))
+    goal = jnp.where(use_future[:, None], future, tr.goal)
+    return RelabelledTransitions(tr.obs, tr.action, tr.next_obs, tr.next_achieved_goal, goal)
+
+
+def with_reward(tr: RelabelledTransitions, reward_fn: RewardFn) -> Batch:
+    """The SAC batch of `tr`: reward_fn(phi(s_{t+1}), goal) and a bootstrap mask of 1.
+
+    No terminal on success (SPEC §4, decided): the bootstrap mask is 1 everywhere; time
+    limits are truncations. Probe tests with real terminals build `Batch` directly.
+    """
+    reward = reward_fn(tr.next_achieved_goal, tr.goal).astype(jnp.float32)
+    return Batch(
+        obs=tr.obs,
+        action=tr.action,
+        reward=reward,
+        next_obs=tr.next_obs,
+        goal=tr.goal,
+        mask=jnp.ones(reward.shape, jnp.float32),
+    )
+
+
 def relabel(
     relabel_prob: jax.Array | float,
     state: replay.ReplayState,
@@ -48,33 +105,14 @@ def relabel(
     key: jax.Array,
     walk_fraction: float = 0.0,
 ) -> Batch:
-    """Samples `batch_size` transitions, relabels their goals and recomputes rewards.
-
-    No terminal on success (SPEC §4, decided): the bootstrap mask is 1 everywhere; time
-    limits are truncations. Probe tests with real terminals build `Batch` directly.
+    """Samples `batch_size` transitions, relabels their goals and recomputes rewards
+    (`sample_relabelled`, then `with_reward`).
 
     Args:
-      relabel_prob: probability of relabelling a transition's goal (HERConfig; a
-        traced value in the trainer, so a sweep can vmap over it).
-      state: a non-empty replay buffer.
-      batch_size: B.
+      relabel_prob, state, batch_size, key, walk_fraction: as `sample_relabelled`.
       reward_fn: reward_fn(ag_next, goal) -> reward, see `RewardFn`.
-      key: PRNG key.
-      walk_fraction: share of the batch from random-walk transitions (`replay.sample`).
     Returns:
       Batch with leading axis B.
     """
-    key_sample, key_future, key_coin = jax.random.split(key, 3)
-    tr = replay.sample(state, batch_size, key_sample, walk_fraction)
-    future = future_goals(state, tr.episode, tr.step, key_future)
-    use_future = jax.random.bernoulli(key_coin, relabel_prob, (batch_size,))
-    goal = jnp.where(use_future[:, None], future, tr.goal)
-    reward = reward_fn(tr.next_achieved_goal, goal).astype(jnp.float32)
-    return Batch(
-        obs=tr.obs,
-        action=tr.action,
-        reward=reward,
-        next_obs=tr.next_obs,
-        goal=goal,
-        mask=jnp.ones((batch_size,), jnp.float32),
-    )
+    tr = sample_relabelled(relabel_prob, state, batch_size, key, walk_fraction)
+    return with_reward(tr, reward_fn)
