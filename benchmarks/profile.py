@@ -75,8 +75,8 @@ def part_seconds(cfg: config.TrainConfig, env, repeats: int = 3) -> dict[str, fl
     n_blocks = sched.sac_updates // sac.block_size(cfg.sac)
     sac_updates = jax.jit(lambda ts, key: agent.sac_blocks(ts, n_blocks, key))
     classifier_updates = jax.jit(
-        lambda ts, key: trainer.scan_updates(
-            agent.classifier_update, ts, sched.classifier_updates, key
+        lambda ts, key: jax.lax.scan(
+            agent.classifier_update, ts, jax.random.split(key, sched.classifier_updates)
         )
     )
     # A matching is due at iteration 0 of its cycle; it serves `rematch_every` iterations.

@@ -480,14 +480,6 @@ class Agent:
         return ts.replace(classifier=new_clf), metrics
 
 
-def scan_updates(update, ts: TrainState, n: int, key):
-    """`n` applications of update(ts, key) -> (ts, metrics) by lax.scan; mean metrics."""
-    if n == 0:
-        return ts, {}
-    ts, metrics = jax.lax.scan(update, ts, jax.random.split(key, n))
-    return ts, jax.tree.map(jnp.mean, metrics)
-
-
 def params_finite(ts: TrainState) -> jax.Array:
     """() bool: every SAC and classifier parameter is finite."""
     leaves = jax.tree.leaves((ts.sac, ts.classifier.params))
