@@ -14,11 +14,18 @@ complex_maze and spiral_maze (benchmarks/RESULTS.md) was read from these maps.
 `--per-head` adds, for each mode's conditioning goal g_k, each head's f_i(cell; g_k)
 (10 x, 0-9): whether the heads disagree by goal or only by region (why spiral_maze's
 curriculum is mode-agnostic, docs/DEVIATIONS.md).
+
+`--reach N` adds where the policy can go: for each free cell, the share of N episodes
+from the start state (SPEC §7's evaluation: deterministic actor, no goal switching,
+success within the radius at any step) that reach that cell's centre as the goal
+(10 x, 0-9; `A` = every episode). Set beside the visits, it tells cells the agent has
+been to from cells its goal-conditioned policy can reach on demand.
 """
 
 from __future__ import annotations
 
 import argparse
+import sys
 from collections.abc import Callable
 from typing import NamedTuple
 
@@ -117,6 +124,34 @@ def head_maps(net, params, grid: Grid, goal: np.ndarray) -> np.ndarray:
     return probs.T.reshape(-1, len(grid.layout), len(grid.layout[0]))
 
 
+def reach_rates(env, policy, grid: Grid, episodes: int, key) -> np.ndarray:
+    """(rows, cols) share of `episodes` deterministic episodes that reach each free cell's
+    centre, NaN on '#' cells (SPEC §7's success: within the radius at any step).
+
+    Args:
+      env: the environment; policy: a `rollout.Policy` (pass the deterministic actor).
+      grid: its cells (`env_grid`); episodes: episodes per cell; key: PRNG key (reset noise).
+    """
+    from d2c_jax.core import rollout
+
+    free = np.array([ch != "#" for row in grid.layout for ch in row])
+    goals = np.repeat(grid.centres[free], episodes, axis=0).astype(np.float32)
+    record = lambda before, action, after: after.success  # noqa: E731
+    run = jax.jit(lambda g, k: rollout.run(env, policy, g, k, record=record)[1])
+    hit = np.asarray(run(goals, key)).any(axis=1).reshape(-1, episodes).mean(axis=1)
+    rates = np.full(free.shape, np.nan)
+    rates[free] = hit
+    return rates.reshape(len(grid.layout), len(grid.layout[0]))
+
+
+def draw_reach(rates: np.ndarray) -> list[str]:
+    """One string per row: 10 x rate (0-9), `A` where every episode reached, `#` at NaN."""
+    return [
+        "".join("#" if np.isnan(p) else "A" if p >= 1.0 else str(int(10 * p)) for p in row)
+        for row in rates
+    ]
+
+
 def main(argv=None) -> int:
     from d2c_jax.curricula import classifier
     from d2c_jax.training import runs
@@ -125,8 +160,20 @@ def main(argv=None) -> int:
     parser.add_argument("run")
     parser.add_argument("--seed-index", type=int, default=0)
     parser.add_argument("--per-head", action="store_true", help="each head's map per mode")
+    parser.add_argument(
+        "--reach", type=int, default=0, metavar="N", help="reach map, N episodes per cell"
+    )
     args = parser.parse_args(argv)
-    cfg, env, ts = runs.load_run(args.run)
+    try:
+        if args.reach < 0:
+            raise runs.RunError(f"--reach must be >= 0 episodes per cell, got {args.reach}", 2)
+        cfg, env, ts = runs.load_run(args.run)
+        n_runs = len(ts.env_steps)
+        if not 0 <= args.seed_index < n_runs:
+            raise runs.RunError(f"--seed-index must be in [0, {n_runs}), got {args.seed_index}", 2)
+    except runs.RunError as err:
+        print(f"error: {err}", file=sys.stderr)
+        return 2
     grid = env_grid(env)
     layout = grid.layout
     rp = jax.tree.map(lambda x: np.asarray(x[args.seed_index]), ts.replay)
@@ -159,6 +206,15 @@ def main(argv=None) -> int:
             drawn = [draw_scores(layout, h, modes) for h in heads]
             for row in zip(*drawn, strict=True):
                 print("   ".join(row))
+    if args.reach:
+        from d2c_jax.training import agent as agent_lib
+
+        sac_state = jax.tree.map(lambda x: x[args.seed_index], ts.sac)
+        policy = agent_lib.Agent(cfg, env).policy(sac_state, deterministic=True)
+        rates = reach_rates(env, policy, grid, args.reach, jax.random.key(args.seed_index))
+        print(f"10 x reach rate ({args.reach} deterministic episodes per cell)   visits (log10)")
+        for a, b in zip(draw_reach(rates), draw_counts(layout, every), strict=True):
+            print(f"{a}   {b}")
     return 0
 
 

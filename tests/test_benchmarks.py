@@ -157,3 +157,25 @@ def test_brax_sac_epochs_alternate_with_the_callback():
     )
     assert len(calls) == 2 and len(rates) == 2
     assert all(np.isfinite(r) and r > 0 for r in rates)
+
+
+def test_visit_map_reach_rates_of_a_policy_that_never_moves():
+    """A policy that never moves reaches only the start cell's centre (the reset lies
+    within 0.1 x sqrt 2 of it, inside the 0.5 radius); walls are NaN and drawn '#'."""
+    import jax
+    import jax.numpy as jnp
+
+    import envs
+    from benchmarks import visit_map
+
+    env = envs.make("medium_maze")
+    grid = visit_map.env_grid(env)
+    still = lambda obs, goal, key: jnp.zeros(env.action_dim)  # noqa: E731
+    rates = visit_map.reach_rates(env, still, grid, 2, jax.random.key(0))
+    walls = np.array([[ch == "#" for ch in row] for row in env.layout])
+    np.testing.assert_array_equal(np.isnan(rates), walls)
+    want = np.where(walls, np.nan, 0.0)
+    want[5, 5] = 1.0  # S
+    np.testing.assert_array_equal(rates, want)
+    assert visit_map.draw_reach(rates)[5] == "#0000A0000#"
+    assert visit_map.draw_reach(np.array([[0.35, np.nan, 0.99]])) == ["3#9"]
