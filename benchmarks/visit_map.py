@@ -126,7 +126,7 @@ def head_maps(net, params, grid: Grid, goal: np.ndarray) -> np.ndarray:
 
 def reach_rates(env, policy, grid: Grid, episodes: int, key) -> np.ndarray:
     """(rows, cols) share of `episodes` deterministic episodes that reach each free cell's
-    centre, NaN on '#' cells (SPEC §7's success: within the radius at any step).
+    centre, NaN on '#' cells (`rollout.success_rates`: SPEC §7's episodes).
 
     Args:
       env: the environment; policy: a `rollout.Policy` (pass the deterministic actor).
@@ -135,12 +135,11 @@ def reach_rates(env, policy, grid: Grid, episodes: int, key) -> np.ndarray:
     from d2c_jax.core import rollout
 
     free = np.array([ch != "#" for row in grid.layout for ch in row])
-    goals = np.repeat(grid.centres[free], episodes, axis=0).astype(np.float32)
-    record = lambda before, action, after: after.success  # noqa: E731
-    run = jax.jit(lambda g, k: rollout.run(env, policy, g, k, record=record)[1])
-    hit = np.asarray(run(goals, key)).any(axis=1).reshape(-1, episodes).mean(axis=1)
+    goals = grid.centres[free].astype(np.float32)
     rates = np.full(free.shape, np.nan)
-    rates[free] = hit
+    rates[free] = jax.jit(lambda g, k: rollout.success_rates(env, policy, g, episodes, k))(
+        goals, key
+    )
     return rates.reshape(len(grid.layout), len(grid.layout[0]))
 
 

@@ -229,19 +229,26 @@ def collect(
     )
 
 
-def evaluate(env: GoalEnv, policy: Policy, episodes_per_mode: int, key: jax.Array) -> jax.Array:
-    """SPEC §7: success rate per mode, (n_modes,).
+def success_rates(
+    env: GoalEnv, policy: Policy, goals: jax.Array, episodes_per_goal: int, key: jax.Array
+) -> jax.Array:
+    """(n_goals,) share of `episodes_per_goal` episodes per goal that reach it: SPEC §7's
+    episodes (from the start state with its reset noise, no goal switching; success =
+    within the radius at any step) for any goals (n_goals, goal_dim).
 
-    For each mode point, `episodes_per_mode` episodes from the start state (with its reset
-    noise), goal = the mode point exactly, no goal switching; success = within the
-    radius at any step. Episode i (mode i // episodes_per_mode) uses `split(key, n)[i]`.
-    `policy` should be deterministic (tanh of the mean): then its key does not matter.
+    Episode i (goal i // episodes_per_goal) uses `split(key, n)[i]`. `policy` should be
+    deterministic (tanh of the mean): then its key does not matter.
     """
-    modes = jnp.asarray(env.goal_points)
-    goals = jnp.repeat(modes, episodes_per_mode, axis=0)  # (n_modes * n, goal_dim)
-    _, success = run(env, policy, goals, key, record=lambda before, action, after: after.success)
-    hit = success.any(axis=1).astype(jnp.float32)  # (n_modes * n,)
-    return hit.reshape(env.n_modes, episodes_per_mode).mean(axis=1)
+    repeated = jnp.repeat(goals, episodes_per_goal, axis=0)  # (n_goals * n, goal_dim)
+    _, success = run(env, policy, repeated, key, record=lambda before, action, after: after.success)
+    hit = success.any(axis=1).astype(jnp.float32)  # (n_goals * n,)
+    return hit.reshape(goals.shape[0], episodes_per_goal).mean(axis=1)
+
+
+def evaluate(env: GoalEnv, policy: Policy, episodes_per_mode: int, key: jax.Array) -> jax.Array:
+    """SPEC §7: success rate per mode, (n_modes,): `success_rates` with the goal = each
+    mode point exactly."""
+    return success_rates(env, policy, jnp.asarray(env.goal_points), episodes_per_mode, key)
 
 
 def _trace_point(state: EnvState) -> Trace:
