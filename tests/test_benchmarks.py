@@ -179,3 +179,17 @@ def test_visit_map_reach_rates_of_a_policy_that_never_moves():
     np.testing.assert_array_equal(rates, want)
     assert visit_map.draw_reach(rates)[5] == "#0000A0000#"
     assert visit_map.draw_reach(np.array([[0.35, np.nan, 0.99]])) == ["3#9"]
+
+
+def test_ant_gait_cpg_action_by_hand_and_bad_input(capsys):
+    """a_j(t) = clip(A_j sin(w t dt + phi_j) + c_j, -1, 1), by hand at t = 0 and t = 1; bad
+    counts exit 2 with a first line that names the flag."""
+    from benchmarks import ant_gait
+
+    w = np.pi / 2 / ant_gait.ENV_DT  # a quarter period per env step
+    gait = np.concatenate([[w], np.full(8, 2.0), np.zeros(8), np.full(8, 0.25)])
+    np.testing.assert_allclose(ant_gait.cpg_action(gait, 0), np.full(8, 0.25))  # sin 0 = 0
+    np.testing.assert_allclose(ant_gait.cpg_action(gait, 1), np.ones(8))  # 2 + 0.25, clipped
+    assert ant_gait.main(["--draws", "0"]) == 2
+    assert capsys.readouterr().err.splitlines()[0] == "error: --draws must be >= 1, got 0"
+    assert ant_gait.main(["--search-physics", "euler"]) == 2
