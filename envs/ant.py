@@ -23,7 +23,7 @@ against C MuJoCo: benchmarks/RESULTS.md, "Environments"):
   inside explicit Euler's stability limit at dt = 0.01. Pyramidal friction cones
   (MuJoCo's default). Until 2026-12-02 the solve had 1 iteration, which matched a
   converged solve under random actions but not at walking speed: the feet slipped, and a
-  fast open-loop gait covered 12.7 units of path in H steps against 17.4 converged
+  fast open-loop gait covered 12.6 units of path in H steps against 16.9 converged
   (`python -m benchmarks.ant_gait`; tests/test_ant.py keeps the env within 10%). The
   8 iterations cost about 1.4 s more per 6,000 env steps on this 2-core CPU (2.9 -> 4.3 s).
   In MJX (not C MuJoCo) more than one iteration lets a torso thrown at 20-30 m/s pass
