@@ -59,26 +59,34 @@ def cpg_action(gait: np.ndarray, t) -> np.ndarray:
     return xp.clip(amp * xp.sin(w * t * ENV_DT + phase) + offset, -1.0, 1.0)
 
 
-def open_arena_model(physics: str) -> mujoco.MjModel:
-    """The ant on OPEN_ARENA under a named physics setting (see PHYSICS)."""
-    iterations, ls_iterations, integrator = PHYSICS[physics]
-    model = ant.build_ant_model(OPEN_ARENA, iterations=iterations, ls_iterations=ls_iterations)
-    if integrator == "rk4":
-        model.opt.integrator = mujoco.mjtIntegrator.mjINT_RK4
-        model.opt.disableflags &= ~int(mujoco.mjtDisableBit.mjDSBL_EULERDAMP)
-    return model
-
-
-PHYSICS: dict[str, tuple[int, int, str]] = {
-    "env": (ant.SOLVER_ITERATIONS, ant.LS_ITERATIONS, "euler"),
+PHYSICS: dict[str, tuple[int, int, str] | None] = {
+    "env": None,
     "newton1": (1, ant.LS_ITERATIONS, "euler"),
     "newton4": (4, ant.LS_ITERATIONS, "euler"),
     "converged": (100, 50, "euler"),
     "rk4": (100, 50, "rk4"),
 }
-"""name -> (Newton iterations, line-search iterations, integrator). `env` is envs/ant.py's
-setting; `newton1` the one it had before 2026-12-02; `rk4` a converged solve with RK4, the
-integrator of OUTPACE's ant.xml (timestep 0.01, 5 substeps, as ours)."""
+"""name -> (Newton iterations, line-search iterations, integrator), or None for
+envs/ant.py's own setting. `newton1` is the env's setting before 2026-12-02; `rk4` a
+converged solve with RK4, the integrator of OUTPACE's ant.xml (timestep 0.01 and 5
+substeps, as ours)."""
+INTEGRATORS = {"euler": mujoco.mjtIntegrator.mjINT_EULER, "rk4": mujoco.mjtIntegrator.mjINT_RK4}
+
+
+def open_arena_model(physics: str) -> mujoco.MjModel:
+    """The ant on OPEN_ARENA under a named physics setting (see PHYSICS)."""
+    if PHYSICS[physics] is None:
+        return ant.build_ant_model(OPEN_ARENA)
+    iterations, ls_iterations, integrator = PHYSICS[physics]
+    model = ant.build_ant_model(OPEN_ARENA, iterations=iterations, ls_iterations=ls_iterations)
+    model.opt.integrator = INTEGRATORS[integrator]
+    return model
+
+
+def describe(model: mujoco.MjModel) -> str:
+    """'<integrator>, Newton <iterations>/<line-search iterations>' of a model."""
+    name = mujoco.mjtIntegrator(model.opt.integrator).name.removeprefix("mjINT_").lower()
+    return f"{name}, Newton {model.opt.iterations}/{model.opt.ls_iterations}"
 
 
 def reset_qpos_qvel(model: mujoco.MjModel, rng: np.random.Generator | None):
@@ -206,12 +214,13 @@ def main(argv=None) -> int:
         print("gait:", np.array2string(gait, precision=4, separator=", ", max_line_width=100))
     print(f"torso path over {H} env steps ({H * ENV_DT:.0f} s), {args.draws} reset draws:")
     for name in PHYSICS:
-        iterations, ls_iterations, integrator = PHYSICS[name]
-        r = path_lengths(open_arena_model(name), gait, args.draws, args.seed)
-        print(f"  {name:9s} ({integrator}, Newton {iterations}/{ls_iterations}): {_summary(r)}")
+        model = open_arena_model(name)
+        r = path_lengths(model, gait, args.draws, args.seed)
+        print(f"  {name:9s} ({describe(model)}): {_summary(r)}")
     if args.mjx:
-        r = mjx_path_lengths(open_arena_model("env"), gait, args.draws, args.seed)
-        print(f"  MJX, env settings: {_summary(r)}")
+        model = open_arena_model("env")
+        r = mjx_path_lengths(model, gait, args.draws, args.seed)
+        print(f"  MJX, env    ({describe(model)}): {_summary(r)}")
     return 0
 
 
