@@ -13,7 +13,7 @@ a_j(t) = clip(A_j sin(w t dt + phi_j) + c_j, -1, 1), t the env step and dt = 0.0
 gait is 25 numbers (w, A (8), phi (8), c (8)), in ant.xml's actuator order. `search`
 finds a fast one by random search then hill climbing, on an open floor (the ant of
 ant.xml in an 11 x 11-cell arena, walls 18 units away) under one physics setting;
-`path_lengths` replays a gait from reset-noise draws (SPEC §8's noise) under each setting
+`path_lengths` replays a gait from the env's resets (SPEC §8's noise) under each setting
 and measures the torso's path, summed over 10-step chords (a gait's heading drifts, so
 the path is steadier than the displacement). `--mjx` adds the MJX replay at the env's own
 settings, the physics training actually runs.
@@ -89,21 +89,14 @@ def describe(model: mujoco.MjModel) -> str:
     return f"{name}, Newton {model.opt.iterations}/{model.opt.ls_iterations}"
 
 
-def reset_qpos_qvel(model: mujoco.MjModel, rng: np.random.Generator | None):
-    """SPEC §8's start state, with its reset noise when rng is given."""
-    qpos = np.array(ant.START_QPOS, np.float64)
-    qvel = np.zeros(model.nv)
-    if rng is not None:
-        qpos = qpos + rng.uniform(-ant.RESET_QPOS_NOISE, ant.RESET_QPOS_NOISE, model.nq)
-        qpos[3:7] /= np.linalg.norm(qpos[3:7])
-        qvel = ant.RESET_QVEL_STD * rng.normal(size=model.nv)
-    return qpos, qvel
-
-
-def torso_path(model: mujoco.MjModel, gait: np.ndarray, rng=None) -> tuple[float, float]:
-    """C MuJoCo: (path over H env steps in 10-step chords, final displacement) of the torso."""
+def torso_path(model: mujoco.MjModel, gait: np.ndarray, key=None) -> tuple[float, float]:
+    """C MuJoCo: (path over H env steps in 10-step chords, final displacement) of the torso,
+    from the start pose, or from the env's reset (`ant.reset_qpos_qvel(key)`) given a key."""
     data = mujoco.MjData(model)
-    data.qpos[:], data.qvel[:] = reset_qpos_qvel(model, rng)
+    if key is None:
+        data.qpos[:] = ant.START_QPOS
+    else:
+        data.qpos[:], data.qvel[:] = map(np.asarray, ant.reset_qpos_qvel(key))
     start = data.qpos[:2].copy()
     prev, path = start.copy(), 0.0
     for t in range(H):
@@ -115,29 +108,26 @@ def torso_path(model: mujoco.MjModel, gait: np.ndarray, rng=None) -> tuple[float
     return path, float(np.linalg.norm(data.qpos[:2] - start))
 
 
+def reset_keys(draws: int, seed: int) -> jax.Array:
+    """(draws,) reset keys: the C and MJX replays start from the same states."""
+    return jax.random.split(jax.random.PRNGKey(seed), draws)
+
+
 def path_lengths(model: mujoco.MjModel, gait: np.ndarray, draws: int, seed: int = 0) -> np.ndarray:
-    """(draws, 2) torso_path from `draws` reset-noise draws of one seeded generator."""
-    rng = np.random.default_rng(seed)
-    return np.array([torso_path(model, gait, rng) for _ in range(draws)])
+    """(draws, 2) torso_path from `draws` env resets (`reset_keys`)."""
+    return np.array([torso_path(model, gait, key) for key in reset_keys(draws, seed)])
 
 
 def mjx_path_lengths(
     model: mujoco.MjModel, gait: np.ndarray, draws: int, seed: int = 0
 ) -> np.ndarray:
-    """(draws, 2) the same measure in MJX, draws vmapped (reset noise from jax.random)."""
+    """(draws, 2) the same measure in MJX, from the same resets, vmapped."""
     mjx_model, template = put_mjx(model)
     gait = jnp.asarray(gait)
-    start_qpos = jnp.asarray(ant.START_QPOS, jnp.float32)
 
     def episode(key):
-        k_pos, k_vel = jax.random.split(key)
-        qpos = start_qpos + jax.random.uniform(
-            k_pos, (model.nq,), minval=-ant.RESET_QPOS_NOISE, maxval=ant.RESET_QPOS_NOISE
-        )
-        qpos = qpos.at[3:7].set(qpos[3:7] / jnp.linalg.norm(qpos[3:7]))
-        data = template.replace(
-            qpos=qpos, qvel=ant.RESET_QVEL_STD * jax.random.normal(k_vel, (model.nv,))
-        )
+        qpos, qvel = ant.reset_qpos_qvel(key)
+        data = template.replace(qpos=qpos, qvel=qvel)
 
         def step(d, t):
             d = scan_substeps(
@@ -152,8 +142,7 @@ def mjx_path_lengths(
         path = jnp.sum(jnp.linalg.norm(jnp.diff(points, axis=0), axis=-1))
         return jnp.stack([path, jnp.linalg.norm(xy[-1] - qpos[:2])])
 
-    keys = jax.random.split(jax.random.PRNGKey(seed), draws)
-    return np.asarray(jax.jit(jax.vmap(episode))(keys))
+    return np.asarray(jax.jit(jax.vmap(episode))(reset_keys(draws, seed)))
 
 
 def search(

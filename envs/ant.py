@@ -23,7 +23,7 @@ against C MuJoCo: benchmarks/RESULTS.md, "Environments"):
   inside explicit Euler's stability limit at dt = 0.01. Pyramidal friction cones
   (MuJoCo's default). Until 2026-12-02 the solve had 1 iteration, which matched a
   converged solve under random actions but not at walking speed: the feet slipped, and a
-  fast open-loop gait covered 12.6 units of path in H steps against 16.9 converged
+  fast open-loop gait covered 11.4 units of path in H steps against 17.2 converged
   (`python -m benchmarks.ant_gait`; tests/test_ant.py keeps the env within 10%). The
   8 iterations cost about 1.4 s more per 6,000 env steps on this 2-core CPU (2.9 -> 4.3 s).
   In MJX (not C MuJoCo) more than one iteration lets a torso thrown at 20-30 m/s pass
@@ -155,6 +155,19 @@ def build_ant_model(
     return spec.compile()
 
 
+def reset_qpos_qvel(key: jax.Array) -> tuple[jax.Array, jax.Array]:
+    """SPEC §8's reset: qpos (15,) = START_QPOS + U[-0.1, 0.1] (quaternion renormalised),
+    qvel (14,) ~ N(0, 0.1^2)."""
+    key_pos, key_vel = jax.random.split(key)
+    nq = len(START_QPOS)
+    qpos = jnp.asarray(START_QPOS, jnp.float32) + jax.random.uniform(
+        key_pos, (nq,), minval=-RESET_QPOS_NOISE, maxval=RESET_QPOS_NOISE
+    )
+    qpos = qpos.at[3:7].set(qpos[3:7] / jnp.linalg.norm(qpos[3:7]))
+    qvel = RESET_QVEL_STD * jax.random.normal(key_vel, (nq - 1,))  # free joint: 7 qpos, 6 dofs
+    return qpos, qvel
+
+
 class Ant(GoalEnv):
     """The ant in the SPEC §8 arena: obs (29) = qpos[:15] + qvel[:14], action (8), goal = torso xy.
 
@@ -206,13 +219,7 @@ class Ant(GoalEnv):
         # Only qpos/qvel are set: the first mjx.step recomputes everything else, so the
         # derived fields (xpos, contacts...) are the template's until then (run
         # mjx.forward on the state to render it).
-        key_pos, key_vel = jax.random.split(key)
-        nq, nv = self.mj_model.nq, self.mj_model.nv
-        qpos = jnp.asarray(self.start_qpos) + jax.random.uniform(
-            key_pos, (nq,), minval=-RESET_QPOS_NOISE, maxval=RESET_QPOS_NOISE
-        )
-        qpos = qpos.at[3:7].set(qpos[3:7] / jnp.linalg.norm(qpos[3:7]))
-        qvel = RESET_QVEL_STD * jax.random.normal(key_vel, (nv,))
+        qpos, qvel = reset_qpos_qvel(key)
         return self._data_template.replace(qpos=qpos, qvel=qvel)
 
     def _step_data(self, data: mjx.Data, action: jax.Array) -> mjx.Data:
