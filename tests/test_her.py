@@ -114,3 +114,19 @@ def test_sparse_reward_with_her_rewards_reached_future_goals():
     next_step = np.asarray(b.goal[:, 0]) == np.asarray(b.next_obs[:, 0])
     np.testing.assert_array_equal(np.asarray(b.reward)[next_step], 1.0)
     np.testing.assert_array_equal(np.asarray(b.reward)[~next_step], 0.0)
+
+
+def test_terminal_fn_masks_the_bootstrap_where_the_relabelled_goal_is_reached():
+    """OUTPACE's critic stops at success of the (relabelled) goal: mask = 1 - success, by
+    hand on four transitions; the reward is untouched, and without terminal_fn the mask
+    is 1 everywhere (SPEC §4)."""
+    ag_next = jnp.array([[0.0, 0.0], [0.3, 0.4], [0.3, 0.41], [5.0, 5.0]])
+    goal = jnp.zeros((4, 2))
+    tr = her.RelabelledTransitions(
+        obs=jnp.zeros((4, 1)), action=jnp.zeros((4, 1)), next_obs=jnp.zeros((4, 1)),
+        next_achieved_goal=ag_next, goal=goal,
+    )  # fmt: skip
+    terminal = her.with_reward(tr, reward_first_coordinate, her.sparse_reward_fn(RadiusEnv()))
+    np.testing.assert_array_equal(terminal.mask, [0.0, 0.0, 1.0, 1.0])
+    np.testing.assert_allclose(terminal.reward, [0.0, 0.3, 0.3, 5.0])
+    np.testing.assert_array_equal(her.with_reward(tr, reward_first_coordinate).mask, 1.0)

@@ -154,3 +154,21 @@ def test_outpace_settings_follow_the_authors_per_env():
 def test_outpace_trains_tiny_on_every_env(env_name, tmp_path):
     cfg, _, _ = cli.parse_args(["--env", env_name, "--preset", "tiny", "--algo", "outpace"])
     assert loop.train(cfg, tmp_path / "run", quiet=True) == 0
+
+
+def test_outpace_critic_stops_at_success_and_d2cs_does_not():
+    """OUTPACE's own code ends the critic's episode where the relabelled goal is reached
+    (done_on_success, consider_done_true_in_critic); D2C and the other baselines keep
+    bootstrapping (SPEC §4)."""
+    from d2c_jax.training import agent as agent_lib
+
+    maze = envs.make("medium_maze")
+    ag = jnp.array([[16.0, 16.3], [16.0, 16.6]])  # 0.3 and 0.6 from the goal (radius 0.5)
+    goal = jnp.array([[16.0, 16.0], [16.0, 16.0]])
+    for algo in ("outpace", "d2c", "her", "hgg"):
+        cfg = config.with_algo(config.preset("medium_maze", "tiny"), algo)
+        terminal_fn = agent_lib.Agent(cfg, maze).terminal_fn()
+        if algo == "outpace":
+            np.testing.assert_array_equal(terminal_fn(ag, goal), [1.0, 0.0])
+        else:
+            assert terminal_fn is None, algo

@@ -80,20 +80,29 @@ def sample_relabelled(
     return RelabelledTransitions(tr.obs, tr.action, tr.next_obs, tr.next_achieved_goal, goal)
 
 
-def with_reward(tr: RelabelledTransitions, reward_fn: RewardFn) -> Batch:
-    """The SAC batch of `tr`: reward_fn(phi(s_{t+1}), goal) and a bootstrap mask of 1.
+def with_reward(
+    tr: RelabelledTransitions, reward_fn: RewardFn, terminal_fn: RewardFn | None = None
+) -> Batch:
+    """The SAC batch of `tr`: reward_fn(phi(s_{t+1}), goal) and its bootstrap mask.
 
-    No terminal on success (SPEC §4, decided): the bootstrap mask is 1 everywhere; time
-    limits are truncations. Probe tests with real terminals build `Batch` directly.
+    No terminal on success (SPEC §4, decided): without `terminal_fn` the bootstrap mask is
+    1 everywhere; time limits are truncations. A baseline whose own code ends the critic's
+    episode at success (OUTPACE) passes terminal_fn(ag_next, goal) -> 1 where s_{t+1} is
+    terminal for the relabelled goal, and the mask is 1 - that. Probe tests with other
+    terminals build `Batch` directly.
     """
     reward = reward_fn(tr.next_achieved_goal, tr.goal).astype(jnp.float32)
+    if terminal_fn is None:
+        mask = jnp.ones(reward.shape, jnp.float32)
+    else:
+        mask = 1.0 - terminal_fn(tr.next_achieved_goal, tr.goal).astype(jnp.float32)
     return Batch(
         obs=tr.obs,
         action=tr.action,
         reward=reward,
         next_obs=tr.next_obs,
         goal=tr.goal,
-        mask=jnp.ones(reward.shape, jnp.float32),
+        mask=mask,
     )
 
 
@@ -104,6 +113,7 @@ def relabel(
     reward_fn: RewardFn,
     key: jax.Array,
     walk_fraction: float = 0.0,
+    terminal_fn: RewardFn | None = None,
 ) -> Batch:
     """Samples `batch_size` transitions, relabels their goals and recomputes rewards
     (`sample_relabelled`, then `with_reward`).
@@ -111,8 +121,9 @@ def relabel(
     Args:
       relabel_prob, state, batch_size, key, walk_fraction: as `sample_relabelled`.
       reward_fn: reward_fn(ag_next, goal) -> reward, see `RewardFn`.
+      terminal_fn: as `with_reward`; None: no terminals (SPEC §4).
     Returns:
       Batch with leading axis B.
     """
     tr = sample_relabelled(relabel_prob, state, batch_size, key, walk_fraction)
-    return with_reward(tr, reward_fn)
+    return with_reward(tr, reward_fn, terminal_fn)

@@ -67,6 +67,9 @@ class Curriculum:
     needs_pool_obs: bool = False  # `propose` reads inputs.pool_obs
     needs_value: bool = False  # `propose` reads inputs.value_fn
     needs_start_obs: bool = False  # reads inputs.start_obs (a compiled reset on the host)
+    # The critic's bootstrap stops where the relabelled goal is reached (OUTPACE's code);
+    # False: no terminal on success (SPEC §4, decided).
+    terminal_on_success: bool = False
 
     def __init__(
         self,

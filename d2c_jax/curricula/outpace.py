@@ -52,6 +52,11 @@ class OutpaceCurriculum(Curriculum):
 
     reward = "intrinsic"  # its own: the normalised AIM reward
     uses_classifier = False  # meta-NML replaces D2C's ensemble
+    # Its critic stops bootstrapping at success of the relabelled goal (outpace_official
+    # config_outpace.yaml: done_on_success, consider_done_true_in_critic; outpacesac.py
+    # update_critic). Its AIM reward is negative everywhere (mean = max + 0.1), so without
+    # that terminal the return is best where the potential peaks, which need not be g.
+    terminal_on_success = True
 
     def __init__(self, cfg, env, classifier_net, uses_goal_value: bool = False):
         super().__init__(cfg, env, classifier_net, uses_goal_value)

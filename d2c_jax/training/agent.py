@@ -414,6 +414,11 @@ class Agent:
             return intrinsic_fn
         return lambda ag, g: jnp.where(sparse, sparse_fn(ag, g), intrinsic_fn(ag, g))
 
+    def terminal_fn(self) -> RewardFn | None:
+        """Where the critic stops bootstrapping: success of the relabelled goal for a
+        curriculum whose own code ends there (OUTPACE), else None: no terminal (SPEC §4)."""
+        return her.sparse_reward_fn(self.env) if self.curriculum.terminal_on_success else None
+
     def sac_blocks(self, ts: TrainState, n: int, key) -> tuple[TrainState, dict]:
         """`n` blocks of `sac.block_size` SAC updates (critic each, actor and target on
         their cadences) with the current classifier; the mean "sac/*" metrics.
@@ -432,6 +437,7 @@ class Agent:
             return ts, {}
         cfg = self.cfg
         reward_fn = self.reward_fn(ts)
+        terminal_fn = self.terminal_fn()
         prob, walk = ts.hparams.relabel_prob, cfg.replay.walk_fraction
         keys = jax.random.split(key, n)
         size = min(n, _SAMPLE_CHUNK)
@@ -444,7 +450,7 @@ class Agent:
 
         def update_block(sac_state, drawn_and_key):
             drawn, key = drawn_and_key
-            batches = jax.vmap(lambda tr: her.with_reward(tr, reward_fn))(drawn)
+            batches = jax.vmap(lambda tr: her.with_reward(tr, reward_fn, terminal_fn))(drawn)
             return sac.update_sac_block(
                 cfg.sac, self.sac_nets, self.sac_optimizers, ts.hparams.sac, sac_state,
                 batches, self.env, key,
