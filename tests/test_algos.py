@@ -99,6 +99,10 @@ _CONFLICTS = [
         ["--algo", "hgg", "--curriculum.goal-value-weight", "1"],
         "--curriculum.goal-value-weight 1.0",
     ),
+    (
+        ["--algo", "outpace", "--sac.clip-target", "true"],
+        "--sac.clip-target conflicts with --algo outpace",
+    ),
     (["--algo", "ppo"], f"--algo must be one of {', '.join(config.ALGO_NAMES)}, got 'ppo'"),
 ]
 

@@ -377,6 +377,13 @@ def _algo_problem(cfg: TrainConfig) -> str | None:
             f"--reward {cfg.reward} conflicts with --algo {cfg.algo}, which trains with the "
             f"{fixed} reward (paper appendix A.1)"
         )
+    if cfg.algo == "outpace" and cfg.sac.clip_target:
+        # The clip is [0, 1/(1 - gamma)], the return range of rewards in [0, 1]; OUTPACE's
+        # AIM reward is negative, so every target would clip to 0.
+        return (
+            "--sac.clip-target conflicts with --algo outpace: it clips targets to "
+            "[0, 1/(1 - gamma)], and OUTPACE's AIM reward is negative"
+        )
     if cfg.curriculum.variant != "d2c":
         return (
             f"--curriculum.variant {cfg.curriculum.variant} is a D2C ablation; it conflicts "
