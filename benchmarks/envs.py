@@ -122,17 +122,17 @@ def start_states(model: mujoco.MjModel, batch: int, reset) -> np.ndarray:
 
 
 def ant_c_inputs(env, batch: int, steps: int, rng: np.random.Generator):
-    """Ant: reset-noise start states (batch, nstate) and held torques (batch, steps*5, 8)."""
+    """Ant: the env's reset states (batch, nstate) and held torques (batch, steps*5, 8)."""
     from envs import ant
 
     model = env.mj_model
+    keys = jax.random.split(jax.random.key(int(rng.integers(2**31))), batch)
+    qpos, qvel = map(np.asarray, jax.vmap(ant.reset_qpos_qvel)(keys))  # (batch, 15), (batch, 14)
+    resets = iter(zip(qpos, qvel, strict=True))
 
     def reset(data):
         mujoco.mj_resetData(model, data)
-        noise = ant.RESET_QPOS_NOISE
-        data.qpos[:] = env.start_qpos + rng.uniform(-noise, noise, model.nq)
-        data.qpos[3:7] /= np.linalg.norm(data.qpos[3:7])
-        data.qvel[:] = ant.RESET_QVEL_STD * rng.standard_normal(model.nv)
+        data.qpos[:], data.qvel[:] = next(resets)
 
     state = start_states(model, batch, reset)
     torques = rng.uniform(-1.0, 1.0, (batch, steps, 1, model.nu))
