@@ -10,28 +10,32 @@ fingertips, to the mocap body `target`. Each env step moves the target by 0.01·
 clipped to the hand bounds, in 5 equal increments (one per substep). In free motion the
 hand follows critically damped with time constant 0.01 s, so it moves 0.01·a per step and
 trails the target by ~0.014 m at full speed. A kinematic (mocap) hand would push through a
-blocked peg with unbounded force; this one is stopped by contacts, and its force is bounded
-by (1) the equality's impedance d = 0.2 (solimp): static stiffness m/((1-d)·tc²) ≈ 1750 N/m
-instead of ≈ 28,000 N/m at MuJoCo's default d = 0.95, and (2) a leash that keeps the target
-within `LEASH` = 0.03 m of the hand per axis, so a blocked hand pushes with at most ~50 N
-(a held peg sags ~1 mm). The fingers slide along y under position actuators (kp 250, force
-cap 10 N, joint damping 10): the target of each finger is 0.02·(1 - grip), so grip = -1
-opens fully (opening 0.08), grip = 0 just touches a centred peg (opening 0.04 = its width)
-and grip > 0 squeezes it (5 N per finger at grip = 1; pad friction 1.5 holds 15 N against
-the peg's 1.9 N weight). The fingertip pads are boxes 0.04 wide (x) and 0.04 tall (z, from
-0.01 below the hand point): flat faces grasp without letting the peg swing, push the peg's
-long side without letting it yaw off, and cover its whole height when low, so a push into
-a wall cannot pitch the peg up and wedge a pad under it.
+blocked peg with unbounded force; this one is stopped by contacts, and its force is
+bounded by (1) the equality's impedance d = 0.2 (solimp): static stiffness m/((1-d)·tc²) ≈
+1750 N/m instead of ≈ 28,000 N/m at MuJoCo's default d = 0.95, and (2) a leash that keeps
+the target within `LEASH` = 0.03 m of the hand per axis, so a blocked hand pushes with at
+most ~50 N (a held peg sags ~1 mm). The fingers slide along y under position actuators (kp
+250, force cap 10 N, joint damping 10) within travel limits q ∈ [0, 0.04] as stiff as the
+contacts (without them a peg yawing between open pads wedged the fingers up to 27 mm past
+fully open, and a learned policy exploited it; docs/DEVIATIONS.md): the target of each
+finger is 0.02·(1 - grip), so grip = -1 opens fully (opening 0.08), grip = 0 just touches
+a centred peg (opening 0.04 = its width) and grip > 0 squeezes it (5 N per finger at grip
+= 1; pad friction 1.5 holds 15 N against the peg's 1.9 N weight). The fingertip pads are
+boxes 0.04 wide (x) and 0.04 tall (z, from 0.01 below the hand point): flat faces grasp
+without letting the peg swing, push the peg's long side without letting it yaw off, and
+cover its whole height when low, so a push into a wall cannot pitch the peg up and wedge a
+pad under it.
 
 **Contacts.** Only explicit pairs collide (every geom has contype = conaffinity = 0):
 peg-table (box-plane, condim 3, μ 0.6), peg-central wall (box-box, condim 3, μ 0.3),
 peg-retaining walls (each a half-space plane at a table edge: box-plane, condim 1,
 frictionless; the same as the 0.06-high boxes for a peg below their top, cheaper than
 box-box, and a thrown peg still stays on the table), pads-peg (box-box, condim 3, μ 1.5):
-32 contacts, 64 constraint rows, plus 3 for the equality. The hand and fingers collide with
-nothing else (they pass through walls; the hand bounds keep them over the table). Every
-pair has solref (0.005, 1), 2 substeps, the stiffest MuJoCo advises: a peg pinched or
-pressed into the table or a wall sinks a few millimetres at most.
+32 contacts, 64 constraint rows, plus 3 for the equality and 2 for the finger limits. The
+hand and fingers collide with nothing else (they pass through walls; the hand bounds keep
+them over the table). Every pair has solref (0.005, 1), 2 substeps, the stiffest MuJoCo
+advises: a peg pinched or pressed into the table or a wall sinks a few millimetres at
+most.
 
 **Solver.** Newton, 4 iterations, 8 line-search iterations, pyramidal cones, Euler
 (implicit joint damping); timestep 0.0025 s, 5 substeps per env step (metaworld's). With 3

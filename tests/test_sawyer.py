@@ -241,6 +241,26 @@ def test_model_matches_spec(env):
     assert m.nmocap == 1 and m.eq_type[0] == mujoco.mjtEq.mjEQ_CONNECT
 
 
+@pytest.mark.parametrize("push", [1.0, -1.0], ids=["apart", "together"])
+def test_finger_travel_is_limited(env, push):
+    """50 N on each finger (5x its actuator's cap) holds the opening in [0, 0.08] to 1 mm
+    once settled (a step force on a 20 g finger overshoots for a few steps): a peg yawing
+    between open pads once wedged unlimited fingers 27 mm apart."""
+    m = env.mj_model
+    d = mujoco.MjData(m)
+    mujoco.mj_resetDataKeyframe(m, d, m.key("home").id)
+    peg = int(m.jnt_qposadr[m.joint("peg").id])
+    d.qpos[peg : peg + 2] = (0.0, 0.4)  # out from between the pads
+    for name, outward in (("finger_l", -1.0), ("finger_r", 1.0)):
+        d.xfrc_applied[m.body(name).id, 1] = 50.0 * push * outward
+    openings = []
+    for _ in range(400):  # 1 s
+        mujoco.mj_step(m, d)
+        openings.append(d.qpos[env._finger_adr].sum())
+    settled = np.array(openings[-100:])  # the last 0.25 s
+    assert (settled > -1e-3).all() and (settled < 0.08 + 1e-3).all()
+
+
 def test_reset_start_state_and_noise(env):
     keys = jax.random.split(jax.random.key(1), 256)
     state = jax.jit(jax.vmap(env.reset))(keys)
@@ -381,7 +401,9 @@ def test_random_steps_keep_peg_on_table(run):
     assert np.linalg.norm(vel[..., 3:], axis=-1).max() < 150.0  # rad/s
     hand = obs[..., :3]
     assert (hand > HAND_LOW - 0.01).all() and (hand < HAND_HIGH + 0.01).all()
-    assert (obs[..., 3] > -0.005).all() and (obs[..., 3] < 0.09).all()
+    # The fingers' travel limits hold: the opening stays in [0, 0.08] (to 1 mm), also when
+    # a peg yaws between open pads and wedges them apart.
+    assert (obs[..., 3] > -0.001).all() and (obs[..., 3] < 0.081).all()
     assert np.abs(np.asarray(run["env"].normalize_obs(obs))).max() < 1.2
     # The drifting envs really handle the peg: it moves, gets lifted, gets pinched.
     seek_peg = run["obs"][:, run["modes"] == SEEK, 4:]
