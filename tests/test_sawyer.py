@@ -217,7 +217,7 @@ def test_registry_and_attributes(env):
 def test_model_matches_spec(env):
     m = env.mj_model
     assert m.opt.timestep == 0.0025 and sawyer_peg.N_SUBSTEPS == 5
-    assert m.opt.solver == mujoco.mjtSolver.mjSOL_NEWTON and m.opt.iterations <= 4
+    assert m.opt.solver == mujoco.mjtSolver.mjSOL_NEWTON and m.opt.iterations == 8
     np.testing.assert_allclose(m.geom("peg").size, [0.06, 0.02, 0.02])
     wall_y = 0.25 if env.task == "push" else 0.4  # pick & place: the whole table depth
     np.testing.assert_allclose(m.geom("central_wall").size, [0.01, wall_y, 0.05])
@@ -239,6 +239,54 @@ def test_model_matches_spec(env):
     others = {"table", "central_wall", "rim_x_neg", "rim_x_pos", "rim_y_neg", "rim_y_pos"}
     assert pairs == {frozenset(("peg", g)) for g in others | {"pad_l", "pad_r"}}
     assert m.nmocap == 1 and m.eq_type[0] == mujoco.mjtEq.mjEQ_CONNECT
+
+
+# A state of the quick push run of 2026-12-03 (seed 0, iteration 105, episode 13, step
+# 154), recorded at collection: the hand at the table pushes -x with the open pads on a
+# yawed peg that leans on the central wall. With 4 Newton iterations the next steps'
+# contact force did not converge and launched the peg at 13 m/s; 10 s later the run's
+# state was NaN. The next four actions are the policy's.
+LAUNCH_QPOS = (
+    0.06709099560976028, 0.610151469707489, 0.009778990410268307,  # hand
+    0.042646098881959915, 0.04011833667755127,  # fingers
+    0.028556358069181442, 0.6324583292007446, 0.03148007020354271,  # peg
+    0.700313150882721, 0.056488286703825, -0.05786590650677681, 0.7092405557632446,
+)
+LAUNCH_QVEL = (
+    0.08690456300973892, -0.4485395848751068, -0.1065836250782013,
+    0.10266980528831482, -0.12661133706569672,
+    0.40125223994255066, -0.42383110523223877, -0.12783516943454742,
+    0.3580007553100586, -0.6543135643005371, -3.1842658519744873,
+)
+LAUNCH_MOCAP = (0.04424033313989639, 0.5952059030532837, 0.009999997913837433)
+LAUNCH_CTRL = (0.0379764698445797, 0.0379764698445797)
+LAUNCH_ACTIONS = (
+    (-0.9989893436431885, -0.47458189725875854, -0.4907678961753845, -0.9887891411781311),
+    (-0.7860350608825684, -0.5372368693351746, -0.870967447757721, -0.600514829158783),
+    (-0.9998630285263062, -0.6327213048934937, -0.969184160232544, -0.6886906623840332),
+    (-0.9923322200775146, -0.9808510541915894, -0.6284501552581787, -0.35673531889915466),
+)
+
+
+def test_peg_pressed_into_wall_is_not_launched():
+    """The recorded state above, stepped with its recorded actions: the peg, pushed at
+    most ~50 N by a hand moving 1 cm per step, stays below 2 m/s (4 iterations: 13 m/s)."""
+    env = envs.make("sawyer_push")
+    state = env.reset(jax.random.key(0))
+    data = state.data.replace(
+        qpos=jnp.asarray(LAUNCH_QPOS, jnp.float32),
+        qvel=jnp.asarray(LAUNCH_QVEL, jnp.float32),
+        mocap_pos=jnp.asarray([LAUNCH_MOCAP], jnp.float32),
+        ctrl=jnp.asarray(LAUNCH_CTRL, jnp.float32),
+    )
+    state = state.replace(data=data)
+    step = jax.jit(env.step)
+    peg = int(env.mj_model.jnt_dofadr[env.mj_model.joint("peg").id])
+    speeds = []
+    for action in LAUNCH_ACTIONS:
+        state = step(state, jnp.asarray(action, jnp.float32))
+        speeds.append(float(np.linalg.norm(np.asarray(state.data.qvel)[peg : peg + 3])))
+    assert np.isfinite(speeds).all() and max(speeds) < 2.0, speeds
 
 
 @pytest.mark.parametrize("push", [1.0, -1.0], ids=["apart", "together"])
