@@ -244,8 +244,8 @@ def test_model_matches_spec(env):
 # A state of the quick push run of 2026-12-03 (seed 0, iteration 105, episode 13, step
 # 154), recorded at collection: the hand at the table pushes -x with the open pads on a
 # yawed peg that leans on the central wall. With 4 Newton iterations the next steps'
-# contact force did not converge and launched the peg at 13 m/s; 10 s later the run's
-# state was NaN. The next four actions are the policy's.
+# contact force did not converge and launched the peg at 13 m/s; 5 steps later the
+# run's state was NaN. The next four actions are the policy's.
 LAUNCH_QPOS = (
     0.06709099560976028, 0.610151469707489, 0.009778990410268307,  # hand
     0.042646098881959915, 0.04011833667755127,  # fingers
