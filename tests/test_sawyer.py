@@ -241,49 +241,88 @@ def test_model_matches_spec(env):
     assert m.nmocap == 1 and m.eq_type[0] == mujoco.mjtEq.mjEQ_CONNECT
 
 
-# A state of the quick push run of 2026-12-03 (seed 0, iteration 105, episode 13, step
-# 154), recorded at collection: the hand at the table pushes -x with the open pads on a
-# yawed peg that leans on the central wall. With 4 Newton iterations the next steps'
-# contact force did not converge and launched the peg at 13 m/s; 5 steps later the
-# run's state was NaN. The next four actions are the policy's.
-LAUNCH_QPOS = (
-    0.06709099560976028, 0.610151469707489, 0.009778990410268307,  # hand
-    0.042646098881959915, 0.04011833667755127,  # fingers
-    0.028556358069181442, 0.6324583292007446, 0.03148007020354271,  # peg
-    0.700313150882721, 0.056488286703825, -0.05786590650677681, 0.7092405557632446,
-)
-LAUNCH_QVEL = (
-    0.08690456300973892, -0.4485395848751068, -0.1065836250782013,
-    0.10266980528831482, -0.12661133706569672,
-    0.40125223994255066, -0.42383110523223877, -0.12783516943454742,
-    0.3580007553100586, -0.6543135643005371, -3.1842658519744873,
-)
-LAUNCH_MOCAP = (0.04424033313989639, 0.5952059030532837, 0.009999997913837433)
-LAUNCH_CTRL = (0.0379764698445797, 0.0379764698445797)
-LAUNCH_ACTIONS = (
-    (-0.9989893436431885, -0.47458189725875854, -0.4907678961753845, -0.9887891411781311),
-    (-0.7860350608825684, -0.5372368693351746, -0.870967447757721, -0.600514829158783),
-    (-0.9998630285263062, -0.6327213048934937, -0.969184160232544, -0.6886906623840332),
-    (-0.9923322200775146, -0.9808510541915894, -0.6284501552581787, -0.35673531889915466),
-)
+# States recorded at collection in the quick runs of 2026-12-03 (seed 0) that went NaN,
+# each followed by the policy's next four actions. In both the hand is at the table,
+# pushing -x with open pads on a peg yawed ~90° that lies against the central wall. With
+# 4 Newton iterations the contact force did not converge and launched the peg (13 and 16
+# m/s); a few steps later the state was NaN. push: iteration 105, episode 13, step 154
+# (its solver warm start was not recorded; the launch happens from a zero one too);
+# pick_place: iteration 161, episode 14, step 138 (the launch step: the peg left at 16
+# m/s, as in the run).
+LAUNCHES = {
+    "push": dict(
+        qpos=(
+            0.06709099560976028, 0.610151469707489, 0.009778990410268307,  # hand
+            0.042646098881959915, 0.04011833667755127,  # fingers
+            0.028556358069181442, 0.6324583292007446, 0.03148007020354271,  # peg
+            0.700313150882721, 0.056488286703825, -0.05786590650677681, 0.7092405557632446,
+        ),
+        qvel=(
+            0.08690456300973892, -0.4485395848751068, -0.1065836250782013,
+            0.10266980528831482, -0.12661133706569672,
+            0.40125223994255066, -0.42383110523223877, -0.12783516943454742,
+            0.3580007553100586, -0.6543135643005371, -3.1842658519744873,
+        ),
+        warmstart=(0.0,) * 11,
+        mocap=(0.04424033313989639, 0.5952059030532837, 0.009999997913837433),
+        ctrl=(0.0379764698445797, 0.0379764698445797),
+        actions=(
+            (-0.9989893436431885, -0.47458189725875854, -0.4907678961753845, -0.9887891411781311),
+            (-0.7860350608825684, -0.5372368693351746, -0.870967447757721, -0.600514829158783),
+            (-0.9998630285263062, -0.6327213048934937, -0.969184160232544, -0.6886906623840332),
+            (-0.9923322200775146, -0.9808510541915894, -0.6284501552581787, -0.35673531889915466),
+        ),
+    ),
+    "pick_place": dict(
+        qpos=(
+            0.06833137571811676, 0.6544554233551025, 0.011466569267213345,
+            0.04081188142299652, 0.038002945482730865,
+            0.029571520164608955, 0.6740821599960327, 0.021964790299534798,
+            0.7095954418182373, -0.012008381076157093, -0.0036883032880723476, -0.7044973969459534,
+        ),
+        qvel=(
+            -0.15778665244579315, 0.15243208408355713, -0.017929160967469215,
+            -0.04272311180830002, 0.09024173021316528,
+            -0.19726572930812836, 0.32758089900016785, -0.07856450974941254,
+            2.384986400604248, 0.8199768662452698, 5.096177577972412,
+        ),
+        warmstart=(
+            -94.44469451904297, 9.778375625610352, -28.048521041870117,
+            -28.26059913635254, 84.09397888183594,
+            -70.12138366699219, 39.648658752441406, -5.374408721923828,
+            -1816.3690185546875, 332.07965087890625, 1531.478515625,
+        ),
+        mocap=(0.03768477588891983, 0.6677343249320984, 0.010000001639127731),
+        ctrl=(0.03998887538909912, 0.03998887538909912),
+        actions=(
+            (-0.9999359846115112, 0.5326576828956604, 0.31793859601020813, -0.9994069337844849),
+            (-0.9999830722808838, 0.6372038125991821, -0.9859388470649719, -0.9999025464057922),
+            (-1.0, 0.8073751330375671, -0.9877088069915771, -0.9999609589576721),
+            (-1.0, 1.0, -1.0, -1.0),
+        ),
+    ),
+}
 
 
-def test_peg_pressed_into_wall_is_not_launched():
-    """The recorded state above, stepped with its recorded actions: the peg, pushed at
-    most ~50 N by a hand moving 1 cm per step, stays below 2 m/s (4 iterations: 13 m/s)."""
-    env = envs.make("sawyer_push")
+@pytest.mark.parametrize("task", TASKS)
+def test_peg_pressed_into_wall_is_not_launched(task):
+    """A recorded state above, stepped with its recorded actions: the peg, pushed with at
+    most ~50 N by a hand moving 1 cm per step, stays below 2 m/s (4 iterations: 13 and 16
+    m/s)."""
+    env, launch = envs.make(f"sawyer_{task}"), LAUNCHES[task]
     state = env.reset(jax.random.key(0))
     data = state.data.replace(
-        qpos=jnp.asarray(LAUNCH_QPOS, jnp.float32),
-        qvel=jnp.asarray(LAUNCH_QVEL, jnp.float32),
-        mocap_pos=jnp.asarray([LAUNCH_MOCAP], jnp.float32),
-        ctrl=jnp.asarray(LAUNCH_CTRL, jnp.float32),
+        qpos=jnp.asarray(launch["qpos"], jnp.float32),
+        qvel=jnp.asarray(launch["qvel"], jnp.float32),
+        qacc_warmstart=jnp.asarray(launch["warmstart"], jnp.float32),
+        mocap_pos=jnp.asarray([launch["mocap"]], jnp.float32),
+        ctrl=jnp.asarray(launch["ctrl"], jnp.float32),
     )
     state = state.replace(data=data)
     step = jax.jit(env.step)
     peg = int(env.mj_model.jnt_dofadr[env.mj_model.joint("peg").id])
     speeds = []
-    for action in LAUNCH_ACTIONS:
+    for action in launch["actions"]:
         state = step(state, jnp.asarray(action, jnp.float32))
         speeds.append(float(np.linalg.norm(np.asarray(state.data.qvel)[peg : peg + 3])))
     assert np.isfinite(speeds).all() and max(speeds) < 2.0, speeds
