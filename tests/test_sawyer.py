@@ -249,6 +249,7 @@ def test_model_matches_spec(env):
 # (its solver warm start was not recorded; the launch happens from a zero one too);
 # pick_place: iteration 161, episode 14, step 138 (the launch step: the peg left at 16
 # m/s, as in the run).
+# fmt: off
 LAUNCHES = {
     "push": dict(
         qpos=(
@@ -302,6 +303,7 @@ LAUNCHES = {
         ),
     ),
 }
+# fmt: on
 
 
 @pytest.mark.parametrize("task", TASKS)
