@@ -37,12 +37,14 @@ them over the table). Every pair has solref (0.005, 1), 2 substeps, the stiffest
 advises: a peg pinched or pressed into the table or a wall sinks a few millimetres at
 most.
 
-**Solver.** Newton, 8 iterations (converged: on the launch states below 10 and 16 give
-the same peg speeds), 8 line-search iterations, pyramidal cones, Euler (implicit joint damping);
+**Solver.** Newton, 8 iterations (converged: on the recorded launch states 10 and 16
+give the same peg speeds), 8 line-search iterations, pyramidal cones, Euler (implicit joint
+damping);
 timestep 0.0025 s, 5 substeps per env step (metaworld's). With 1-2 iterations pinching the
 peg under random actions gives NaN; with 4, a pad pressing a yawed peg into the central
-wall got an unconverged contact force that launched it at 13 m/s, and a learned push policy
-did that about once in 500 episodes (docs/DEVIATIONS.md).
+wall got an unconverged contact force that launched it at 11-16 m/s (a learned push
+policy: 3 pegs above 2 m/s and 1 NaN in 500 episodes) and the runs went NaN
+(docs/DEVIATIONS.md).
 
 Data fields other than qpos, qvel, mocap_pos, ctrl and time are stale right after reset
 (no `mjx.forward` there); obs and φ read qpos only.
