@@ -38,12 +38,12 @@ advises: a peg pinched or pressed into the table or a wall sinks a few millimetr
 most.
 
 **Solver.** Newton, 8 iterations (converged: on the recorded launch states 10 and 16
-give the same peg speeds), 8 line-search iterations, pyramidal cones, Euler (implicit joint
-damping); timestep 0.0025 s, 5 substeps per env step (metaworld's). With 1-2 iterations pinching the
-peg under random actions gives NaN; with 4, a pad pressing a yawed peg into the central
-wall got an unconverged contact force that launched it at 11-16 m/s (a learned push
-policy: 3 pegs above 2 m/s and 1 NaN in 500 episodes) and the runs went NaN
-(docs/DEVIATIONS.md).
+give the same peg speeds), 8 line-search iterations, pyramidal cones, Euler (implicit
+joint damping); timestep 0.0025 s, 5 substeps per env step (metaworld's). With 1-2
+iterations pinching the peg under random actions gives NaN; with 4, a pad pressing a
+yawed peg into the central wall got an unconverged contact force that launched it at
+11-16 m/s (a learned push policy: 3 pegs above 2 m/s and 1 NaN in 500 episodes) and the
+runs went NaN (docs/DEVIATIONS.md).
 
 Data fields other than qpos, qvel, mocap_pos, ctrl and time are stale right after reset
 (no `mjx.forward` there); obs and φ read qpos only.
