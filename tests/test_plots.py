@@ -49,6 +49,17 @@ def test_training_minutes_sum_iteration_times_by_hand(tmp_path):
     assert (tmp_path / "success.png").stat().st_size > 1000
 
 
+def test_minutes_axis_mapping_continues_past_the_data_by_hand():
+    """Inside the rows it is np.interp; past them it follows the end segments' slopes
+    (steps 100 -> 0.5 min, 200 -> 2.0, 300 -> 3.0), so ticks in the axis margins keep
+    distinct positions, and the two directions invert each other."""
+    steps, minutes = np.array([100.0, 200.0, 300.0]), np.array([0.5, 2.0, 3.0])
+    x = np.array([0.0, 150.0, 400.0])
+    mapped = plots.interp_extended(x, steps, minutes)
+    np.testing.assert_allclose(mapped, [0.5 - 100 * 0.015, 1.25, 3.0 + 100 * 0.01])
+    np.testing.assert_allclose(plots.interp_extended(mapped, minutes, steps), x)
+
+
 def test_draw_map_draws_the_sawyer_wall_where_the_model_has_it():
     """The table map shows the central wall box at the MuJoCo model's geom (xy)."""
     import envs

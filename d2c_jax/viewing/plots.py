@@ -122,6 +122,18 @@ def training_minutes(rows: list[dict]) -> tuple[np.ndarray, np.ndarray]:
     return steps, minutes
 
 
+def interp_extended(x, xp: np.ndarray, fp: np.ndarray) -> np.ndarray:
+    """np.interp, continued linearly past both ends with the end segments' slopes: x (...)
+    -> (...). The axis margins lie outside the data, and np.interp's clamping there would
+    map every tick past the last row onto the same point, stacking their labels."""
+    x = np.asarray(x, np.float64)
+    y = np.interp(x, xp, fp)
+    low_slope = (fp[1] - fp[0]) / (xp[1] - xp[0])
+    high_slope = (fp[-1] - fp[-2]) / (xp[-1] - xp[-2])
+    y = np.where(x < xp[0], fp[0] + (x - xp[0]) * low_slope, y)
+    return np.where(x > xp[-1], fp[-1] + (x - xp[-1]) * high_slope, y)
+
+
 def _minutes_axis(ax, rows: list[dict]) -> None:
     """A top x axis in training minutes, mapped from the env steps below it."""
     steps, minutes = training_minutes(rows)
@@ -129,7 +141,10 @@ def _minutes_axis(ax, rows: list[dict]) -> None:
         return
     top = ax.secondary_xaxis(
         "top",
-        functions=(lambda s: np.interp(s, steps, minutes), lambda m: np.interp(m, minutes, steps)),
+        functions=(
+            lambda s: interp_extended(s, steps, minutes),
+            lambda m: interp_extended(m, minutes, steps),
+        ),
     )
     top.set_xlabel("minutes")
 
