@@ -353,8 +353,8 @@ def test_no_preset_on_cpu_means_quick_and_says_so_first():
 
 def test_quick_preset_adds_exploration_everywhere_but_medium_maze():
     """complex quick = variant V of RESULTS.md (U: the exploration options and utd 1; and
-    SPEC §3's 3x256 classifier), spiral quick = variant F (U and the goal-value
-    tie-break, beta = 1);
+    SPEC §3's 3x256 classifier), spiral quick = variant LV (V, the goal-value tie-break
+    beta = 1, and SAC learning rates of 3e-4);
     Ant and Sawyer quick = the options at utd 0.25 with an evaluation every 30k env steps
     (sawyer_push also SAC learning rates of 3e-4); medium_maze's quick preset keeps SPEC
     §3-§6 as written."""
@@ -377,16 +377,18 @@ def test_quick_preset_adds_exploration_everywhere_but_medium_maze():
             assert quick == base
         elif env in ("complex_maze", "spiral_maze"):
             u = dataclasses.replace(config.with_outpace_exploration(base), utd=1.0)
-            if env == "spiral_maze":  # run F: U with the goal-value tie-break
+            # run V: U with SPEC §3's classifier size
+            want = dataclasses.replace(
+                u,
+                classifier=dataclasses.replace(
+                    u.classifier, hidden_sizes=(256, 256, 256), batch_size=512
+                ),
+            )
+            if env == "spiral_maze":  # run LV: V, the goal-value tie-break, SAC lr 3e-4
                 want = dataclasses.replace(
-                    u, curriculum=dataclasses.replace(u.curriculum, goal_value_weight=1.0)
-                )
-            else:  # run V: U with SPEC §3's classifier size
-                want = dataclasses.replace(
-                    u,
-                    classifier=dataclasses.replace(
-                        u.classifier, hidden_sizes=(256, 256, 256), batch_size=512
-                    ),
+                    want,
+                    curriculum=dataclasses.replace(want.curriculum, goal_value_weight=1.0),
+                    sac=dataclasses.replace(want.sac, actor_lr=3e-4, critic_lr=3e-4, alpha_lr=3e-4),
                 )
             assert quick == want
         else:
