@@ -473,10 +473,12 @@ _TRAP_ENVS = ("complex_maze", "spiral_maze", "ant", "sawyer_push", "sawyer_pick_
 # - Ant and Sawyer: an evaluation every 30k env steps instead of 10k; an evaluation runs
 #   as many env steps as a training iteration (20 or 30 episodes of the horizon): every
 #   10k env steps 11-14% of the train step's time, every 30k 4-5% (`benchmarks.profile`).
-# - sawyer_push also SAC learning rates of 3e-4 instead of Table 2's 1e-4, for the quarter
-#   of the paper's updates per env step: over 3M env steps (seed 0) `curriculum/distance`
-#   was lower at every 500k (0.10 against 0.20 over the last 100k) at the same minutes;
-#   seed 1 at 3e-4 matched seed 0 at 1e-4 (0.21 at 3M), so kept as no worse, not proven.
+# - sawyer_push also SAC learning rates of 3e-4 instead of Table 2's 1e-4 and, since
+#   2026-12-04, Table 2's one SAC update per env step: with both, mode 2 (the one on the
+#   start's side of the wall) is evaluated at 0.8 first at 992k env steps with seed 0
+#   (0.64 on average from 1.6M) where utd 0.25 reaches it at 2.75M-2.91M (0.08 on
+#   average), and seed 1 has it at 0.5-0.6 by 600-800k; neither alone did as much (utd 1
+#   at 1e-4: eval 0.0 to 1M). About 2.2x the minutes per env step.
 _SPEC_CLASSIFIER_SIZE = dict(
     hidden_sizes=ClassifierConfig.hidden_sizes, batch_size=ClassifierConfig.batch_size
 )  # SPEC §3's trunk and batch, which the common quick settings shrink to 2x128 and 256
@@ -490,7 +492,7 @@ _QUICK_OVERRIDES: dict[str, dict] = {
         sac=_SAC_LR_3E4,
     ),
     "ant": dict(eval_every=30_000),
-    "sawyer_push": dict(eval_every=30_000, sac=_SAC_LR_3E4),
+    "sawyer_push": dict(eval_every=30_000, utd=1.0, sac=_SAC_LR_3E4),
     "sawyer_pick_place": dict(eval_every=30_000),
 }
 

@@ -356,8 +356,8 @@ def test_quick_preset_adds_exploration_everywhere_but_medium_maze():
     SPEC §3's 3x256 classifier), spiral quick = variant LV (V, the goal-value tie-break
     beta = 1, and SAC learning rates of 3e-4);
     Ant and Sawyer quick = the options at utd 0.25 with an evaluation every 30k env steps
-    (sawyer_push also SAC learning rates of 3e-4); medium_maze's quick preset keeps SPEC
-    §3-§6 as written."""
+    (sawyer_push with SAC learning rates of 3e-4 and utd 1 instead); medium_maze's quick
+    preset keeps SPEC §3-§6 as written."""
     for env in envs.ENV_NAMES:
         quick = config.preset(env, "quick")
         paper = config.preset(env, "paper")  # Table 3's per-env settings stay
@@ -395,7 +395,7 @@ def test_quick_preset_adds_exploration_everywhere_but_medium_maze():
             want = dataclasses.replace(config.with_outpace_exploration(base), eval_every=30_000)
             if env == "sawyer_push":
                 sac = dataclasses.replace(want.sac, actor_lr=3e-4, critic_lr=3e-4, alpha_lr=3e-4)
-                want = dataclasses.replace(want, sac=sac)
+                want = dataclasses.replace(want, sac=sac, utd=1.0)
             assert quick == want
 
 
