@@ -477,8 +477,8 @@ _TRAP_ENVS = ("complex_maze", "spiral_maze", "ant", "sawyer_push", "sawyer_pick_
 #   2026-12-04, Table 2's one SAC update per env step: with both, mode 2 (the one on the
 #   start's side of the wall) is evaluated at 0.8 first at 992k env steps with seed 0
 #   (0.64 on average from 1.6M) where utd 0.25 reaches it at 2.75M-2.91M (0.08 on
-#   average), and seed 1 has it at 0.5-0.6 by 600-800k; neither alone did as much (utd 1
-#   at 1e-4: eval 0.0 to 1M). About 2.2x the minutes per env step.
+#   average), and seed 1 at 0.8 first at 960k (0.0 to 2.25M at utd 0.25); neither alone
+#   did as much (utd 1 at 1e-4: eval 0.0 to 1M). About 2.2x the minutes per env step.
 _SPEC_CLASSIFIER_SIZE = dict(
     hidden_sizes=ClassifierConfig.hidden_sizes, batch_size=ClassifierConfig.batch_size
 )  # SPEC §3's trunk and batch, which the common quick settings shrink to 2x128 and 256
