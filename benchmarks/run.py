@@ -2,6 +2,7 @@
 
     pip install -e '.[bench]'      # SB3, gymnasium-robotics, PyTorch (brax is a core dependency)
     python -m benchmarks.run [--only throughput sac_update envs matching seeds sweep memory]
+    python -m benchmarks.run --only throughput --no-sb3   # ours against brax SAC only
 
 Sections written (each names its command and the hardware):
   "Training throughput vs SB3 and brax SAC"
@@ -46,13 +47,14 @@ class Throughput(NamedTuple):
     paired_vs_brax: dict[str, float]
 
 
-def throughput_rates(size: str) -> Throughput:
-    """SB3 SAC+HER, brax SAC, and our SAC+HER and D2C at SIZES[size].
+def throughput_rates(size: str, with_sb3: bool = True) -> Throughput:
+    """SB3 SAC+HER (unless not `with_sb3`), brax SAC, and our SAC+HER and D2C at
+    SIZES[size].
 
     Ours and brax alternate on the machine: before each of TIMED_ROUNDS timed brax epochs
     (2,000 env steps), one timed round (2,000 env steps) of each of our rows runs.
     """
-    reference = sb3.sb3_env_steps_per_s(size)
+    reference = sb3.sb3_env_steps_per_s(size) if with_sb3 else None
     ours = {
         variant: trainer.TimedRun(cfg) for variant, cfg in trainer.throughput_configs(size).items()
     }
@@ -62,7 +64,9 @@ def throughput_rates(size: str) -> Throughput:
         timed_epochs=TIMED_ROUNDS,
         after_epoch=lambda: rounds.append(trainer.alternate_rounds(ours)),
     )
-    rates = {SB3: (reference, reference), BRAX: (max(brax),) * 2}
+    rates = {BRAX: (max(brax),) * 2}
+    if reference is not None:
+        rates = {SB3: (reference, reference), **rates}
     paired = {}
     for variant, run in ours.items():
         best = max(r[variant] for r in rounds)
@@ -71,7 +75,10 @@ def throughput_rates(size: str) -> Throughput:
     return Throughput(rates, paired)
 
 
-def throughput_section() -> str:
+def throughput_section(with_sb3: bool = True) -> str:
+    """The throughput table; without SB3 (`--no-sb3`: a machine without the bench extra,
+    such as a GPU image with no PyTorch RL stack) its row and the "vs SB3" column read
+    n/a."""
     rows = [
         "| size (hidden, batch) | tool | env steps/s | SAC updates/s | vs SB3 | vs brax SAC "
         "(best / best) | vs brax SAC (paired median) | target |",
@@ -79,24 +86,31 @@ def throughput_section() -> str:
     ]
     for size in TARGET_VS_SB3:
         label = sac_update.size_label(size)
-        measured = throughput_rates(size)
-        sb3_rate, brax_rate = measured.rates[SB3][0], measured.rates[BRAX][0]
+        measured = throughput_rates(size, with_sb3)
+        sb3_rate, brax_rate = measured.rates.get(SB3, (None,))[0], measured.rates[BRAX][0]
         for tool, (rate, updates) in measured.rates.items():
             target = ""
             if tool == "d2c_jax SAC+HER":
                 target = f">= {TARGET_VS_SB3[size]}x SB3, >= {TARGET_VS_BRAX}x brax"
             paired = measured.paired_vs_brax.get(tool)
             paired_cell = "" if paired is None else f"{paired:.2f}x"
+            vs_sb3 = "n/a" if sb3_rate is None else f"{rate / sb3_rate:.2f}x"
             rows.append(
-                f"| {label} | {tool} | {rate:,.1f} | {updates:,.1f} | {rate / sb3_rate:.2f}x "
+                f"| {label} | {tool} | {rate:,.1f} | {updates:,.1f} | {vs_sb3} "
                 f"| {rate / brax_rate:.2f}x | {paired_cell} | {target} |"
             )
         print("\n".join(rows[-len(measured.rates) :]), flush=True)
     return "\n".join(
         [
-            f"Command: `python -m benchmarks.run --only throughput` ({time.strftime('%Y-%m-%d')}).",
+            f"Command: `python -m benchmarks.run --only throughput"
+            f"{'' if with_sb3 else ' --no-sb3'}` ({time.strftime('%Y-%m-%d')}).",
             f"Hardware: {results.hardware()}; jax {jax.__version__}.",
-            "SB3 on gymnasium-robotics `PointMaze_Medium-v3` (C MuJoCo, 1 env); brax SAC and "
+            (
+                "SB3 on gymnasium-robotics `PointMaze_Medium-v3` (C MuJoCo, 1 env); "
+                if with_sb3
+                else ""
+            )
+            + "brax SAC and "
             "d2c_jax on our MJX `medium_maze` (brax through `envs.to_brax`), 4 envs. Identical "
             "settings: the same network sizes, batch, one gradient step per env step, actor, "
             "alpha and target every step. d2c_jax SAC+HER = D2C with sparse reward, goals from "
@@ -121,9 +135,20 @@ def matching_section() -> str:
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--only", nargs="+", default=list(PARTS), choices=PARTS)
+    parser.add_argument(
+        "--no-sb3", action="store_true",
+        help="throughput: leave SB3 out (no bench extra, e.g. on a GPU image)",
+    )  # fmt: skip
     args = parser.parse_args(argv)
     jobs = {
-        "throughput": ("Training throughput vs SB3 and brax SAC", throughput_section),
+        # Without SB3, a section of its own (per backend), so that a GPU run does not
+        # replace the CPU table that SB3 is in.
+        "throughput": (
+            f"Training throughput vs brax SAC ({jax.default_backend()}, no SB3)"
+            if args.no_sb3
+            else "Training throughput vs SB3 and brax SAC",
+            lambda: throughput_section(with_sb3=not args.no_sb3),
+        ),
         "sac_update": ("SAC update", lambda: sac_update.run(list(sac_update.SIZES))),
         "envs": ("Environments", lambda: envs_bench.run(ENV_NAMES, (1, 64, 1024), 3)),
         "matching": ("Matching", matching_section),

@@ -193,3 +193,23 @@ def test_ant_gait_cpg_action_by_hand_and_bad_input(capsys):
     assert ant_gait.main(["--draws", "0"]) == 2
     assert capsys.readouterr().err.splitlines()[0] == "error: --draws must be >= 1, got 0"
     assert ant_gait.main(["--search-physics", "euler"]) == 2
+
+
+def test_throughput_section_without_sb3_reads_n_a_against_sb3(monkeypatch):
+    """`benchmarks.run --only throughput --no-sb3` (a GPU image without the bench extra):
+    no SB3 row, "n/a" in the vs-SB3 column, the ratios to brax by hand."""
+    from benchmarks import run
+
+    def rates(size, with_sb3):
+        assert not with_sb3
+        return run.Throughput(
+            {run.BRAX: (200.0, 200.0), "d2c_jax SAC+HER": (250.0, 250.0)},
+            {"d2c_jax SAC+HER": 1.2},
+        )
+
+    monkeypatch.setattr(run, "throughput_rates", rates)
+    text = run.throughput_section(with_sb3=False)
+    assert run.SB3 not in text and "--no-sb3" in text
+    ours = [ln for ln in text.splitlines() if "| d2c_jax SAC+HER |" in ln]
+    assert len(ours) == len(run.TARGET_VS_SB3)
+    assert all("| 250.0 | 250.0 | n/a | 1.25x | 1.20x |" in ln for ln in ours)
