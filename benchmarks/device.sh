@@ -1,17 +1,22 @@
 #!/usr/bin/env bash
-# The GPU checks of one lent-device session (about 9 minutes on one H200), each stage
-# under its own timeout, logs under $OUT (default ./device_out):
-#   1. the packages this image lacks, from wheels in .whl/ (mujoco, mujoco-mjx, brax and
-#      their small dependencies; benchmarks/RESULTS.md "GPU" says which), and imports;
-#   2. brax SAC against our SAC+HER and D2C (`benchmarks.run --only throughput --no-sb3`:
-#      the image has no SB3);
-#   3. the command users are told to run, `python train.py --env ant` (the paper preset on
-#      an accelerator), stopped by SIGTERM after ANT_S seconds: the env steps/s of the
-#      paper preset and a clean stop;
-#   4. vmapped seeds of the paper preset on medium_maze.
-# Usage (from the repo root): bash benchmarks/device.sh
+# The GPU checks of one lent-device session, each stage under its own timeout, logs under
+# $OUT (default ./device_out). STAGES picks them (default: "throughput ant seeds", about
+# 9 minutes on one H200 with its start; one command may run 10):
+#   install     always: the packages the image lacks, from wheels in .whl/ (mujoco,
+#               mujoco-mjx, brax and their small dependencies; RESULTS.md "GPU" lists
+#               them), and the imports;
+#   throughput  brax SAC against our SAC+HER and D2C (`benchmarks.run --only throughput
+#               --no-sb3`: the image has no SB3);
+#   ant         the command users are told to run, `python train.py --env ant` (the paper
+#               preset on an accelerator), stopped by SIGTERM after ANT_S seconds: the
+#               env steps/s of the paper preset, a clean stop, and its critic's Q;
+#   ant_clip    the same with the TD target clipped to the return's range;
+#   ant_f32     the same with float32 matmuls (XLA's GPU default is TF32);
+#   seeds       vmapped seeds of the paper preset on medium_maze.
+# Usage (from the repo root): STAGES="ant ant_clip ant_f32" bash benchmarks/device.sh
 set -u
 OUT=${OUT:-device_out}
+STAGES=${STAGES:-throughput ant seeds}
 mkdir -p "$OUT"
 export PYTHONUNBUFFERED=1
 if [ -d .whl ]; then
@@ -21,14 +26,31 @@ if [ -d .whl ]; then
 fi
 nvidia-smi --query-gpu=name,memory.total,driver_version --format=csv
 python3 -c "import jax, mujoco, brax, envs; print(jax.__version__, jax.devices(), mujoco.__version__, brax.__version__, envs.make('ant').horizon)" || exit 4
-echo "== throughput $(date +%T)"
-timeout "${THROUGHPUT_S:-270}" python3 -m benchmarks.run --only throughput --no-sb3 2>&1 | tee "$OUT/throughput.log"
-echo "== ant, default preset $(date +%T)"
-timeout -s TERM "${ANT_S:-150}" python3 train.py --env ant --total-steps 3000000 --out /tmp/ant_paper 2>&1 \
-  | tr '\r' '\n' | tail -40 >"$OUT/ant.log"
-tail -8 "$OUT/ant.log"
-cp /tmp/ant_paper/metrics.jsonl* /tmp/ant_paper/config.json "$OUT/" 2>/dev/null
-echo "== seeds $(date +%T)"
-timeout "${SEEDS_S:-200}" python3 -m benchmarks.trainer --parts seeds --env medium_maze --preset paper \
-  --seeds 1 8 32 2>&1 | tee "$OUT/seeds.log"
+
+ant() {  # ant NAME [train.py flags]: the default-preset Ant run, stopped after ANT_S s
+  local name=$1
+  shift
+  echo "== $name $(date +%T)"
+  timeout -s TERM "${ANT_S:-150}" python3 train.py --env ant --total-steps 3000000 \
+    --out "/tmp/$name" "$@" 2>&1 | tr '\r' '\n' | tail -40 >"$OUT/$name.log"
+  tail -4 "$OUT/$name.log"
+  cp "/tmp/$name/metrics.jsonl" "$OUT/${name}_metrics.jsonl" 2>/dev/null
+}
+
+for stage in $STAGES; do
+  case $stage in
+    throughput)
+      echo "== throughput $(date +%T)"
+      timeout "${THROUGHPUT_S:-270}" python3 -m benchmarks.run --only throughput --no-sb3 2>&1 \
+        | tee "$OUT/throughput.log" ;;
+    ant) ant ant ;;
+    ant_clip) ant ant_clip --sac.clip-target true ;;
+    ant_f32) JAX_DEFAULT_MATMUL_PRECISION=float32 ant ant_f32 ;;
+    seeds)
+      echo "== seeds $(date +%T)"
+      timeout "${SEEDS_S:-200}" python3 -m benchmarks.trainer --parts seeds --env medium_maze \
+        --preset paper --seeds 1 8 32 2>&1 | tee "$OUT/seeds.log" ;;
+    *) echo "unknown stage: $stage (throughput ant ant_clip ant_f32 seeds)" >&2; exit 2 ;;
+  esac
+done
 echo "== end $(date +%T)"

@@ -487,3 +487,30 @@ def test_sac_blocks_drawn_ahead_equal_a_block_by_block_loop(medium_maze, monkeyp
     assert float(abs(moved).max()) > 1e-4  # the updates changed the critic
     for a, b in zip(jax.tree.leaves(drawn_ahead), jax.tree.leaves(reference), strict=True):
         np.testing.assert_allclose(np.asarray(a), np.asarray(b), rtol=0, atol=1e-6)
+
+
+def test_a_signal_while_an_iteration_computes_stops_at_its_end(tmp_path, monkeypatch):
+    """The step is dispatched asynchronously, so the host waits for an iteration's
+    result in the metrics gather; a SIGTERM that arrives there (simulated by sending it
+    from inside that wait, in iteration 1) must stop the run at the end of iteration 1,
+    checkpointed and evaluated, not one iteration later."""
+    import signal
+
+    calls = []
+    gather = loop.placement.gather_runs
+
+    def gather_and_signal(tree, layout):
+        if not calls and "eval" not in tree:  # the first iteration's train metrics
+            os.kill(os.getpid(), signal.SIGTERM)
+        calls.append(1)
+        return gather(tree, layout)
+
+    monkeypatch.setattr(loop.placement, "gather_runs", gather_and_signal)
+    cfg, _, _ = cli.parse_args(["--env", "medium_maze", "--preset", "tiny"])
+    out = tmp_path / "run"
+    assert loop.train(cfg, out, quiet=True) == 128 + signal.SIGTERM
+    rows = logging_lib.read_metrics(out / "metrics.jsonl")
+    assert [r["iteration"] for r in rows] == [1]
+    assert "eval/success" in rows[0]
+    steps = sorted(int(p.name) for p in (out / "checkpoints").iterdir() if p.name.isdigit())
+    assert steps == [1]

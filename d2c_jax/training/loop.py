@@ -292,11 +292,14 @@ class _Loop:
             bar = ProgressBar(progress, self.agent.cfg.env, sched, start, quiet)
             for it in range(start, sched.total_iterations):
                 ts, metrics = self.steps.train(ts)
+                # The step is dispatched asynchronously: the gather below waits for it, so
+                # the flag is read after it, and a signal that arrives while this
+                # iteration computes stops the run at its end, not one iteration later.
+                row = host_metrics(placement.gather_runs(metrics, layout), layout.n_runs)
+                check_finite(row, it + 1)
                 # Every process must take the same branches (the gathers are collectives).
                 stopping = placement.any_process(layout, stop.signal is not None)
                 last = it + 1 == sched.total_iterations or stopping
-                row = host_metrics(placement.gather_runs(metrics, layout), layout.n_runs)
-                check_finite(row, it + 1)
                 if is_eval_iteration(it + 1, sched) or last:
                     row.update(self._evaluation(ts, it + 1))
                 lap = self.clock.lap()
