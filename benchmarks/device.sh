@@ -11,9 +11,11 @@
 #               preset on an accelerator), stopped by SIGTERM after ANT_S seconds: the
 #               env steps/s of the paper preset, a clean stop, and its critic's Q;
 #   ant_clip    the same with the TD target clipped to the return's range;
-#   ant_f32     the same with float32 matmuls (XLA's GPU default is TF32);
+#   ant_quick   `--preset quick` (2x256, utd 0.25): its env steps/s on the GPU, which says
+#               whether a 3M-env-step run fits in one command;
+#   ant_quick_big  quick with Table 2's 3x512 networks and batch 512;
 #   seeds       vmapped seeds of the paper preset on medium_maze.
-# Usage (from the repo root): STAGES="ant ant_clip ant_f32" bash benchmarks/device.sh
+# Usage (from the repo root): STAGES="ant_clip ant_quick" bash benchmarks/device.sh
 set -u
 OUT=${OUT:-device_out}
 STAGES=${STAGES:-throughput ant seeds}
@@ -45,12 +47,15 @@ for stage in $STAGES; do
         | tee "$OUT/throughput.log" ;;
     ant) ant ant ;;
     ant_clip) ant ant_clip --sac.clip-target true ;;
-    ant_f32) JAX_DEFAULT_MATMUL_PRECISION=float32 ant ant_f32 ;;
+    ant_quick) ant ant_quick --preset quick ;;
+    ant_quick_big)
+      ant ant_quick_big --preset quick --sac.hidden-sizes 512,512,512 --sac.batch-size 512 ;;
     seeds)
       echo "== seeds $(date +%T)"
       timeout "${SEEDS_S:-200}" python3 -m benchmarks.trainer --parts seeds --env medium_maze \
         --preset paper --seeds 1 8 32 2>&1 | tee "$OUT/seeds.log" ;;
-    *) echo "unknown stage: $stage (throughput ant ant_clip ant_f32 seeds)" >&2; exit 2 ;;
+    *) echo "unknown stage: $stage (throughput ant ant_clip ant_quick ant_quick_big seeds)" >&2
+      exit 2 ;;
   esac
 done
 echo "== end $(date +%T)"
