@@ -16,6 +16,16 @@
 #   ant_quick_big  quick with Table 2's 3x512 networks and batch 512;
 #   seeds       vmapped seeds of the paper preset on medium_maze.
 # Usage (from the repo root): STAGES="ant_clip ant_quick" bash benchmarks/device.sh
+# The wheels (for the image's Python 3.12; `.whl/` is ignored by git and travels as a
+# carried path), fetched on a machine with pip:
+#   for p in mujoco==4.0.1 mujoco-core==4.0.1 mujoco-studio==4.0.1 mujoco-mjx==3.17.0 \
+#       brax==0.14.2 ml_collections==1.1.0 trimesh==5.2.0 tensorboardX==2.6.5 jaxopt glfw \
+#       pyopengl; do
+#     pip download -q --no-deps --only-binary=:all: --python-version 3.12 --implementation cp \
+#       --platform manylinux_2_28_x86_64 --platform manylinux_2_27_x86_64 \
+#       --platform manylinux_2_17_x86_64 --platform manylinux2014_x86_64 --platform any \
+#       -d .whl "$p"
+#   done
 set -u
 OUT=${OUT:-device_out}
 STAGES=${STAGES:-throughput ant seeds}
