@@ -87,7 +87,8 @@ def throughput_section(with_sb3: bool = True) -> str:
     for size in TARGET_VS_SB3:
         label = sac_update.size_label(size)
         measured = throughput_rates(size, with_sb3)
-        sb3_rate, brax_rate = measured.rates.get(SB3, (None,))[0], measured.rates[BRAX][0]
+        sb3_rate = measured.rates[SB3][0] if with_sb3 else None
+        brax_rate = measured.rates[BRAX][0]
         for tool, (rate, updates) in measured.rates.items():
             target = ""
             if tool == "d2c_jax SAC+HER":
