@@ -8,14 +8,19 @@
 #   throughput  brax SAC against our SAC+HER and D2C (`benchmarks.run --only throughput
 #               --no-sb3`: the image has no SB3);
 #   ant         the command users are told to run, `python train.py --env ant` (the paper
-#               preset on an accelerator), stopped by SIGTERM after ANT_S seconds: the
-#               env steps/s of the paper preset, a clean stop, and its critic's Q;
+#               preset on an accelerator, one env per iteration), stopped by SIGTERM after
+#               ANT_S seconds: the env steps/s of the paper preset, a clean stop, and its
+#               critic's Q;
 #   ant_clip    the same with the TD target clipped to the return's range;
+#   ant_envs4, ant_envs20  the same with 4 (20) envs per iteration instead of the paper
+#               preset's 1 on Ant: new data every 1,200 (6,000) updates instead of 300.
+#               20 was the preset until 2026-12-04 and its critic diverged (RESULTS.md,
+#               "updates per data refresh"); their env steps/s against the preset's;
 #   ant_quick   `--preset quick` (2x256, utd 0.25): its env steps/s on the GPU, which says
 #               whether a 3M-env-step run fits in one command;
 #   ant_quick_big  quick with Table 2's 3x512 networks and batch 512;
 #   seeds       vmapped seeds of the paper preset on medium_maze.
-# Usage (from the repo root): STAGES="ant_clip ant_quick" bash benchmarks/device.sh
+# Usage (from the repo root): STAGES="ant ant_envs4 ant_quick" bash benchmarks/device.sh
 # The wheels (for the image's Python 3.12; `.whl/` is ignored by git and travels as a
 # carried path), fetched on a machine with pip:
 #   for p in mujoco==4.0.1 mujoco-core==4.0.1 mujoco-studio==4.0.1 mujoco-mjx==3.17.0 \
@@ -57,6 +62,8 @@ for stage in $STAGES; do
         | tee "$OUT/throughput.log" ;;
     ant) ant ant ;;
     ant_clip) ant ant_clip --sac.clip-target true ;;
+    ant_envs4) ant ant_envs4 --num-envs 4 --curriculum.rematch-every 6000 ;;
+    ant_envs20) ant ant_envs20 --num-envs 20 --curriculum.rematch-every 2000 ;;
     ant_quick) ant ant_quick --preset quick ;;
     ant_quick_big)
       ant ant_quick_big --preset quick --sac.hidden-sizes 512,512,512 --sac.batch-size 512 ;;
@@ -64,7 +71,7 @@ for stage in $STAGES; do
       echo "== seeds $(date +%T)"
       timeout "${SEEDS_S:-200}" python3 -m benchmarks.trainer --parts seeds --env medium_maze \
         --preset paper --seeds 1 8 32 2>&1 | tee "$OUT/seeds.log" ;;
-    *) echo "unknown stage: $stage (throughput ant ant_clip ant_quick ant_quick_big seeds)" >&2
+    *) echo "unknown stage: $stage (throughput ant ant_clip ant_envs4 ant_envs20 ant_quick ant_quick_big seeds)" >&2
       exit 2 ;;
   esac
 done

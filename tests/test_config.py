@@ -147,6 +147,7 @@ HORIZON = {"complex_maze": 100, "medium_maze": 100, "spiral_maze": 100, "ant": 3
 # Iterations between checkpoints per preset, as before checkpoint_every was in env steps
 # (paper 25, quick 50, tiny 1), times num_envs (20, 20, 4) times H.
 CHECKPOINT_ITERATIONS = {"paper": 25, "quick": 50, "tiny": 1}
+PRESET_ENVS = {"paper": 20, "quick": 20, "tiny": 4}
 CHECKPOINT_EVERY = {
     "paper": {100: 50_000, 300: 150_000, 200: 100_000},
     "quick": {100: 100_000, 300: 300_000, 200: 200_000},
@@ -170,9 +171,24 @@ def test_presets_follow_table_3_and_the_env_s_horizon(env):
     for name in config.PRESET_NAMES:
         cfg = config.preset(env, name)
         assert cfg.checkpoint_every == CHECKPOINT_EVERY[name][horizon], name
+        # In iterations of the preset's own num_envs (Ant's paper preset: 1 env).
         iterations = math.ceil(cfg.checkpoint_every / (cfg.num_envs * horizon))
-        assert iterations == CHECKPOINT_ITERATIONS[name], name
+        assert iterations == CHECKPOINT_ITERATIONS[name] * PRESET_ENVS[name] // cfg.num_envs
         assert cfg.curriculum.goal_noise == cfg.classifier.eps == TABLE3[env][2], name
+
+
+def test_ant_s_paper_preset_refreshes_data_every_episode_and_keeps_20_slots():
+    """SPEC §2's 20 envs everywhere else; on Ant one episode per iteration (new data every
+    300 updates, as the authors' loop) with the K = 20 slots matched every 20 episodes."""
+    for env in envs.ENV_NAMES:
+        cfg = config.preset(env, "paper")
+        assert cfg.curriculum.n_slots == 20 and cfg.sac.hidden_sizes == (512, 512, 512)
+        episodes_per_match = cfg.curriculum.rematch_every // envs.horizon(env)
+        if env == "ant":
+            assert (cfg.num_envs, episodes_per_match) == (1, 20)
+        else:
+            assert cfg.num_envs == 20 and cfg.curriculum.rematch_every == 2000
+    assert config.preset("ant", "quick").num_envs == 20
 
 
 def test_defaults_are_medium_maze_s_paper_preset_and_unknown_env_raises():
@@ -196,7 +212,7 @@ def test_old_config_json_loads_as_its_run_ran(env, name):
     assert config.from_dict(config.TrainConfig, new) == cfg
     old = json.loads(json.dumps(dataclasses.asdict(cfg)))
     del old["curriculum"]["goal_noise"]
-    old["checkpoint_every"] = CHECKPOINT_ITERATIONS[name]
+    old["checkpoint_every"] = cfg.checkpoint_every // (cfg.num_envs * envs.horizon(env))
     assert config.from_dict(config.TrainConfig, old) == cfg
 
 
@@ -361,8 +377,12 @@ def test_quick_preset_adds_exploration_everywhere_but_medium_maze():
     for env in envs.ENV_NAMES:
         quick = config.preset(env, "quick")
         paper = config.preset(env, "paper")  # Table 3's per-env settings stay
+        # quick keeps SPEC §2's 20 envs, matched every iteration (Ant's paper preset: 1).
+        rematch = dataclasses.replace(paper.curriculum, rematch_every=2000)
         base = dataclasses.replace(
             paper,
+            num_envs=20,
+            curriculum=rematch,
             preset="quick",
             utd=0.25,
             eval_every=10_000,

@@ -221,17 +221,20 @@ def test_schedule_matches_spec_hand_computed_counts():
     from d2c_jax import config
 
     # config.preset needs no env module, so this holds before envs/ant.py exists.
+    # Ant's paper preset: one episode per iteration, 20 slots matched every 20 episodes.
     ant = agent_lib.make_schedule(config.preset("ant", "paper"), horizon=300)
     assert ant == agent_lib.Schedule(
-        env_steps=6000,
-        sac_updates=6000,
-        classifier_updates=21,
-        warmup_iterations=1,
-        eval_every=2,
-        total_iterations=500,
-        rematch_every=1,  # round(2000 / 6000) = 0 -> every iteration
-        checkpoint_every=25,  # 150,000 env steps (25 paper iterations)
+        env_steps=300,
+        sac_updates=300,
+        classifier_updates=1,  # round(16 * 300 / 4500) = round(1.07)
+        warmup_iterations=14,  # ceil(4000 / 300)
+        eval_every=34,  # ceil(10,000 / 300)
+        total_iterations=10_000,
+        rematch_every=20,  # 6000 / 300
+        checkpoint_every=500,  # 150,000 env steps, as with 20 envs (25 iterations)
     )
+    ant20 = dataclasses.replace(config.preset("ant", "quick"), utd=1.0)
+    assert agent_lib.make_schedule(ant20, horizon=300)[:4] == (6000, 6000, 21, 1)
     maze = agent_lib.make_schedule(config.preset("medium_maze", "paper"), horizon=100)
     assert (maze.env_steps, maze.sac_updates, maze.classifier_updates) == (2000, 2000, 16)
     assert (maze.warmup_iterations, maze.eval_every, maze.total_iterations) == (1, 5, 500)
