@@ -243,15 +243,20 @@ def test_schedule_matches_spec_hand_computed_counts():
     assert agent_lib.make_schedule(four_envs, horizon=100).rematch_every == 5  # 2000 / 400
 
 
-def test_held_goals_between_matchings_are_used_in_turn(medium_maze):
+@pytest.mark.parametrize("num_envs", [4, 1])  # 1: Ant's paper preset
+def test_held_goals_between_matchings_are_used_in_turn(medium_maze, num_envs):
     """rematch_every = 2 iterations: the second iteration keeps the matched goals (and their
-    metrics) and its envs take the next slots, K = 8 goals over 2 x 4 envs."""
+    metrics) and its envs take the next slots, K = 2 x num_envs goals over 2 iterations."""
     import jax
 
     cfg = config.preset("medium_maze", "tiny")
+    k = 2 * num_envs
     cfg = dataclasses.replace(
         cfg,
-        curriculum=dataclasses.replace(cfg.curriculum, n_slots=8, pool_size=8, rematch_every=800),
+        num_envs=num_envs,
+        curriculum=dataclasses.replace(
+            cfg.curriculum, n_slots=k, pool_size=k, rematch_every=2 * num_envs * 100
+        ),
     )
     agent = agent_lib.Agent(cfg, medium_maze)
     assert agent.schedule.rematch_every == 2
@@ -263,9 +268,10 @@ def test_held_goals_between_matchings_are_used_in_turn(medium_maze):
     for key in ("curriculum/distance", "curriculum/pool_full"):
         np.testing.assert_array_equal(m1[key], m2[key])
     goals = np.asarray(ts2.curriculum_goals[0])
-    first_goal = np.asarray(ts2.replay.goal[0, :8, 0])  # the first step of each episode
-    np.testing.assert_array_equal(first_goal[:4], goals[:4])  # iteration 1: slots 0..3
-    np.testing.assert_array_equal(first_goal[4:], goals[4:])  # iteration 2: slots 4..7
+    first_goal = np.asarray(ts2.replay.goal[0, :k, 0])  # the first step of each episode
+    n = num_envs
+    np.testing.assert_array_equal(first_goal[:n], goals[:n])  # iteration 1: slots 0..n-1
+    np.testing.assert_array_equal(first_goal[n:], goals[n:])  # iteration 2: the next n
     ts3, _ = step(jax.tree.map(jax.numpy.copy, ts2))
     assert not np.array_equal(ts3.curriculum_goals, ts2.curriculum_goals)  # matched again
 
