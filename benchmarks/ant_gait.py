@@ -59,17 +59,20 @@ def cpg_action(gait: np.ndarray, t) -> np.ndarray:
     return xp.clip(amp * xp.sin(w * t * ENV_DT + phase) + offset, -1.0, 1.0)
 
 
-PHYSICS: dict[str, tuple[int, int, str] | None] = {
+PHYSICS: dict[str, tuple[int, int, str, int] | None] = {
     "env": None,
-    "newton1": (1, ant.LS_ITERATIONS, "euler"),
-    "newton4": (4, ant.LS_ITERATIONS, "euler"),
-    "converged": (100, 50, "euler"),
-    "rk4": (100, 50, "rk4"),
+    "euler_newton1": (1, ant.LS_ITERATIONS, "euler", 1),
+    "euler_newton8": (8, ant.LS_ITERATIONS, "euler", 1),
+    "euler": (100, 50, "euler", 1),
+    "euler_half_dt": (100, 50, "euler", 2),
+    "rk4": (100, 50, "rk4", 1),
 }
-"""name -> (Newton iterations, line-search iterations, integrator), or None for
-envs/ant.py's own setting. `newton1` is the env's setting before 2026-12-02; `rk4` a
-converged solve with RK4, the integrator of OUTPACE's ant.xml (timestep 0.01 and 5
-substeps, as ours)."""
+"""name -> (Newton iterations, line-search iterations, integrator, timestep divisor), or
+None for envs/ant.py's own setting. The Euler rows integrate without the implicit-damping
+pass (`eulerdamp`), as the env did: `euler_newton1` is its setting before 2026-12-02,
+`euler_newton8` until 2026-12-04, `euler` a converged solve. `euler_half_dt` halves the
+timestep and doubles the substeps (the env step stays 0.05 s). `rk4` is a converged solve
+with RK4, the integrator of OUTPACE's ant.xml (timestep 0.01 and 5 substeps, as ours)."""
 INTEGRATORS = {"euler": mujoco.mjtIntegrator.mjINT_EULER, "rk4": mujoco.mjtIntegrator.mjINT_RK4}
 
 
@@ -77,16 +80,25 @@ def open_arena_model(physics: str) -> mujoco.MjModel:
     """The ant on OPEN_ARENA under a named physics setting (see PHYSICS)."""
     if PHYSICS[physics] is None:
         return ant.build_ant_model(OPEN_ARENA)
-    iterations, ls_iterations, integrator = PHYSICS[physics]
+    iterations, ls_iterations, integrator, dt_divisor = PHYSICS[physics]
     model = ant.build_ant_model(OPEN_ARENA, iterations=iterations, ls_iterations=ls_iterations)
     model.opt.integrator = INTEGRATORS[integrator]
+    if integrator == "euler":
+        model.opt.disableflags |= mujoco.mjtDisableBit.mjDSBL_EULERDAMP
+    model.opt.timestep /= dt_divisor
     return model
 
 
+def substeps(model: mujoco.MjModel) -> int:
+    """Physics steps per env step (0.05 s) at the model's timestep."""
+    return round(ENV_DT / model.opt.timestep)
+
+
 def describe(model: mujoco.MjModel) -> str:
-    """'<integrator>, Newton <iterations>/<line-search iterations>' of a model."""
+    """'<integrator> dt <timestep>, Newton <iterations>/<line-search iterations>' of a model."""
     name = mujoco.mjtIntegrator(model.opt.integrator).name.removeprefix("mjINT_").lower()
-    return f"{name}, Newton {model.opt.iterations}/{model.opt.ls_iterations}"
+    solve = f"Newton {model.opt.iterations}/{model.opt.ls_iterations}"
+    return f"{name} dt {model.opt.timestep:g}, {solve}"
 
 
 def torso_path(model: mujoco.MjModel, gait: np.ndarray, key=None) -> tuple[float, float]:
@@ -101,7 +113,7 @@ def torso_path(model: mujoco.MjModel, gait: np.ndarray, key=None) -> tuple[float
     prev, path = start.copy(), 0.0
     for t in range(H):
         data.ctrl[:] = cpg_action(gait, t)
-        mujoco.mj_step(model, data, nstep=ant.N_SUBSTEPS)
+        mujoco.mj_step(model, data, nstep=substeps(model))
         if t % CHORD == CHORD - 1:
             path += float(np.linalg.norm(data.qpos[:2] - prev))
             prev = data.qpos[:2].copy()
@@ -133,7 +145,7 @@ def mjx_path_lengths(
             d = scan_substeps(
                 lambda x: mjx.step(mjx_model, x),
                 d.replace(ctrl=cpg_action(gait, t)),
-                ant.N_SUBSTEPS,
+                substeps(model),
             )
             return d, d.qpos[:2]
 
@@ -205,11 +217,11 @@ def main(argv=None) -> int:
     for name in PHYSICS:
         model = open_arena_model(name)
         r = path_lengths(model, gait, args.draws, args.seed)
-        print(f"  {name:9s} ({describe(model)}): {_summary(r)}")
+        print(f"  {name:13s} ({describe(model)}): {_summary(r)}")
     if args.mjx:
         model = open_arena_model("env")
         r = mjx_path_lengths(model, gait, args.draws, args.seed)
-        print(f"  MJX, env    ({describe(model)}): {_summary(r)}")
+        print(f"  MJX, env      ({describe(model)}): {_summary(r)}")
     return 0
 
 

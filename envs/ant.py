@@ -18,16 +18,20 @@ against C MuJoCo: benchmarks/RESULTS.md, "Environments"):
   condim wins): one constraint row per contact instead of four. MJX solves only the
   `MAX_CONTACT_POINTS` deepest of the 54 potential wall contacts (a custom numeric);
   the 9 floor contacts (condim 3) are never cut.
-- Solver: Newton, 8 iterations, 4 line-search iterations, Euler integration with the
-  implicit-damping pass (`eulerdamp`) disabled: joint damping 1 over armature 1 is far
-  inside explicit Euler's stability limit at dt = 0.01. Pyramidal friction cones
-  (MuJoCo's default). Until 2026-12-02 the solve had 1 iteration, which matched a
-  converged solve under random actions but not at walking speed: the feet slipped, and a
-  fast open-loop gait covered 11.4 units of path in H steps against 17.2 converged
-  (`python -m benchmarks.ant_gait`; tests/test_ant.py keeps the env within 10%). The
-  8 iterations cost about 1.4 s more per 6,000 env steps on this 2-core CPU (2.9 -> 4.3 s).
-  In MJX (not C MuJoCo) more than one iteration lets a torso thrown at 20-30 m/s pass
-  the outer wall; ten times the fastest gait (15 m/s) is held (tests/test_ant.py).
+- Integrator: RK4, the paper's (OUTPACE's ant.xml), at SPEC §8's timestep. Until
+  2026-12-04 it was Euler, chosen for speed; at dt = 0.01 Euler's contact dynamics are
+  too coarse for this light ant: a fast open-loop gait covers 17.2 units of path in H
+  steps with a converged Euler solve against 21.7 under RK4 (Euler at half the timestep
+  gives 20.7, so the loss is Euler's discretisation error, not a different physics), and
+  a gait search finds a best displacement of 12.8 units under Euler against 23.3. The
+  nearer mode is 20 units of corridor away. RK4 costs about 3.6x Euler's physics here
+  (`python -m benchmarks.ant_gait --mjx`; docs/DEVIATIONS.md, "The Ant's physics").
+- Solver: Newton, 2 iterations, 4 line-search iterations, pyramidal friction cones
+  (MuJoCo's default). Under RK4, 2 iterations keep the gait's path within 1% of a
+  converged solve (tests/test_ant.py keeps it within 10%); one iteration lets the feet
+  slip (a third of the path lost under Euler before 2026-12-02). In MJX (not C MuJoCo)
+  a multi-iteration solve lets a torso thrown at 20-30 m/s pass the outer wall; ten
+  times the fastest gait (15 m/s) is held (tests/test_ant.py).
 """
 
 from __future__ import annotations
@@ -55,7 +59,7 @@ TIMESTEP = 0.01
 """Physics timestep in seconds."""
 N_SUBSTEPS = 5
 """Physics steps per env step (an env step is 0.05 s)."""
-SOLVER_ITERATIONS = 8
+SOLVER_ITERATIONS = 2
 """Newton iterations per physics step."""
 LS_ITERATIONS = 4
 """Line-search iterations per Newton iteration."""
@@ -129,11 +133,10 @@ def build_ant_model(
     """The ant of ant.xml plus the arena walls and the MJX solver settings."""
     spec = mujoco.MjSpec.from_file(XML_PATH)
     spec.option.timestep = TIMESTEP
-    spec.option.integrator = mujoco.mjtIntegrator.mjINT_EULER
+    spec.option.integrator = mujoco.mjtIntegrator.mjINT_RK4
     spec.option.solver = mujoco.mjtSolver.mjSOL_NEWTON
     spec.option.iterations = iterations
     spec.option.ls_iterations = ls_iterations
-    spec.option.disableflags |= mujoco.mjtDisableBit.mjDSBL_EULERDAMP
     centres, halves = wall_box_geometry(layout, cell_size)
     for i, ((x, y), (hx, hy)) in enumerate(zip(centres, halves, strict=True)):
         # Collision bit 1 (walls, see ant.xml); priority 1 makes the wall's condim 1 (no
