@@ -24,8 +24,9 @@ against C MuJoCo: benchmarks/RESULTS.md, "Environments"):
   steps with a converged Euler solve against 21.7 under RK4 (Euler at half the timestep
   gives 20.7, so the loss is Euler's discretisation error, not a different physics), and
   a gait search finds a best displacement of 12.8 units under Euler against 23.3. The
-  nearer mode is 20 units of corridor away. RK4 costs about 3.6x Euler's physics here
-  (`python -m benchmarks.ant_gait --mjx`; docs/DEVIATIONS.md, "The Ant's physics").
+  nearer mode is 20 units of corridor away (`python -m benchmarks.ant_gait --mjx`). RK4
+  costs 2.8x Euler's MJX step at batch 64 and 3.6x at batch 1 on this 2-core CPU
+  (`python -m benchmarks.envs --envs ant`; docs/DEVIATIONS.md, "The Ant's physics").
 - Solver: Newton, 2 iterations, 4 line-search iterations, pyramidal friction cones
   (MuJoCo's default). Under RK4, 2 iterations keep the gait's path within 1% of a
   converged solve (tests/test_ant.py keeps it within 10%); one iteration lets the feet
