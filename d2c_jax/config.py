@@ -487,7 +487,9 @@ _TRAP_ENVS = ("complex_maze", "spiral_maze", "ant", "sawyer_push", "sawyer_pick_
 #   0.5 from 1.67M env steps, 1.0 at 2.11M; U stayed at 0.0, its slots collapsing onto one
 #   corridor), SPEC §3's classifier size as complex_maze, and SAC learning rates of 3e-4
 #   (run LV: eval >= 0.8 first at 860k env steps with seed 0, 1.0 from 940k; with seed 7
-#   first at 1.92M);
+#   first at 1.92M), and since 2026-12-04 two SAC updates per env step (LV at utd 2: eval
+#   >= 0.8 first at 940k with seed 1, where LV at utd 1 had only the top mode by 2M, and
+#   at 810k with seed 0, where utd 1 took 860k);
 # - Ant and Sawyer: an evaluation every 30k env steps instead of 10k; an evaluation runs
 #   as many env steps as a training iteration (20 or 30 episodes of the horizon): every
 #   10k env steps 11-14% of the train step's time, every 30k 4-5% (`benchmarks.profile`).
@@ -504,7 +506,7 @@ _SAC_LR_3E4 = dict(actor_lr=3e-4, critic_lr=3e-4, alpha_lr=3e-4)
 _QUICK_OVERRIDES: dict[str, dict] = {
     "complex_maze": dict(utd=1.0, classifier=_SPEC_CLASSIFIER_SIZE),
     "spiral_maze": dict(
-        utd=1.0,
+        utd=2.0,
         curriculum=dict(goal_value_weight=1.0),
         classifier=_SPEC_CLASSIFIER_SIZE,
         sac=_SAC_LR_3E4,

@@ -370,7 +370,7 @@ def test_no_preset_on_cpu_means_quick_and_says_so_first():
 def test_quick_preset_adds_exploration_everywhere_but_medium_maze():
     """complex quick = variant V of RESULTS.md (U: the exploration options and utd 1; and
     SPEC §3's 3x256 classifier), spiral quick = variant LV (V, the goal-value tie-break
-    beta = 1, and SAC learning rates of 3e-4);
+    beta = 1, and SAC learning rates of 3e-4) at two SAC updates per env step;
     Ant and Sawyer quick = the options at utd 0.25 with an evaluation every 30k env steps
     (sawyer_push with SAC learning rates of 3e-4 and utd 1 instead); medium_maze's quick
     preset keeps SPEC §3-§6 as written."""
@@ -404,9 +404,10 @@ def test_quick_preset_adds_exploration_everywhere_but_medium_maze():
                     u.classifier, hidden_sizes=(256, 256, 256), batch_size=512
                 ),
             )
-            if env == "spiral_maze":  # run LV: V, the goal-value tie-break, SAC lr 3e-4
+            if env == "spiral_maze":  # run LV: V, the goal-value tie-break, SAC lr 3e-4; utd 2
                 want = dataclasses.replace(
                     want,
+                    utd=2.0,
                     curriculum=dataclasses.replace(want.curriculum, goal_value_weight=1.0),
                     sac=dataclasses.replace(want.sac, actor_lr=3e-4, critic_lr=3e-4, alpha_lr=3e-4),
                 )
