@@ -192,7 +192,7 @@ def test_ant_gait_cpg_action_by_hand_and_bad_input(capsys):
     np.testing.assert_allclose(ant_gait.cpg_action(gait, 1), np.ones(8))  # 2 + 0.25, clipped
     assert ant_gait.main(["--draws", "0"]) == 2
     assert capsys.readouterr().err.splitlines()[0] == "error: --draws must be >= 1, got 0"
-    assert ant_gait.main(["--search-physics", "euler"]) == 2
+    assert ant_gait.main(["--search-physics", "verlet"]) == 2
 
 
 def test_throughput_section_without_sb3_reads_n_a_against_sb3(monkeypatch):
