@@ -213,3 +213,13 @@ def test_throughput_section_without_sb3_reads_n_a_against_sb3(monkeypatch):
     ours = [ln for ln in text.splitlines() if "| d2c_jax SAC+HER |" in ln]
     assert len(ours) == len(run.TARGET_VS_SB3)
     assert all("| 250.0 | 250.0 | n/a | 1.25x | 1.20x |" in ln for ln in ours)
+
+
+@pytest.mark.parametrize("argv", [["--epochs", "0"], ["--variants", "0", "2"]])
+def test_update_loop_refuses_counts_below_one(argv, capsys):
+    from benchmarks import update_loop
+
+    with pytest.raises(SystemExit) as exit_info:
+        update_loop.main(argv)
+    assert exit_info.value.code == 2
+    assert "must be >= 1" in capsys.readouterr().err.splitlines()[0]

@@ -456,17 +456,22 @@ def test_over_runs_equals_vmap_with_and_without_a_size_one_axis():
         jax.tree.map(lambda g, w: np.testing.assert_allclose(g, w, rtol=1e-6), got, want)
 
 
-def test_sac_blocks_drawn_ahead_equal_a_block_by_block_loop(medium_maze, monkeypatch):
+@pytest.mark.parametrize("cadence", [2, 1])
+def test_sac_blocks_drawn_ahead_equal_a_block_by_block_loop(medium_maze, monkeypatch, cadence):
     """`Agent.sac_blocks` draws HER transitions a chunk at a time (here 3 blocks, so 7
     blocks are 2 chunks and a remainder of 1): the SAC state equals that of a loop that
     draws each block's batches (`her.relabel`, D2C's intrinsic reward) from the i-th key,
-    then updates."""
+    then updates. With the actor and target at every update (`cadence` 1: one-update
+    blocks) the loop is unrolled to two blocks per iteration, 3 = one pair and one more."""
     import jax
 
     from d2c_jax.core import her, sac
 
     monkeypatch.setattr(agent_lib, "_SAMPLE_CHUNK", 3)
     cfg = config.preset("medium_maze", "tiny")
+    sac_cfg = dataclasses.replace(cfg.sac, actor_update_every=cadence, target_update_every=cadence)
+    cfg = dataclasses.replace(cfg, sac=sac_cfg)
+    assert sac.block_size(cfg.sac) == cadence
     agent = agent_lib.Agent(cfg, medium_maze)
     ts, _ = jax.jit(agent.step)(agent.init(jax.random.key(0)))  # a buffer of random episodes
     n, key = 7, jax.random.key(1)

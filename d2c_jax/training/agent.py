@@ -139,6 +139,17 @@ _RARITY_POINTS = 1024
 # the quick preset; on Ant at the paper's batch, 64 x 512 rows of 70 floats (9 MB).
 _SAMPLE_CHUNK = 64
 
+# SAC updates in one iteration of the update loop's compiled body, at least: blocks of
+# fewer updates are unrolled (`lax.scan`'s unroll) up to it. XLA:CPU copies the SAC
+# parameters that its YNNPACK matmuls read at the top of every loop iteration (so that Adam
+# can then overwrite them in place), so two updates per iteration halve those copies for
+# one-update blocks (actor and target every update: the throughput benchmark's settings).
+# Measured on 2 Intel Xeon cores, SAC+HER at 2x256: 0.90x brax SAC's env steps/s with one
+# update per iteration, 1.00x with 2 and 4, 0.97x with 8 (paired medians of 6 rounds).
+# The presets' two-update blocks are unchanged: unrolling them too gained nothing
+# (medium_maze quick: 1.01x with 2 blocks per iteration, 0.94x with 4). benchmarks/RESULTS.md.
+_MIN_UPDATES_PER_LOOP_ITERATION = 2
+
 
 class Agent:
     """D2C for one config and env, built once on the host.
@@ -428,7 +439,9 @@ class Agent:
         per update: SAC+HER's updates 6-9% faster at 2x256); each block's rewards come
         from the current classifier inside the loop, one call on block_size x B rows (a
         classifier forward runs fastest on ~1k rows on a CPU: 50-58 GMAC/s, 32-35 at
-        16k-100k rows). Block i draws from the i-th of `n` keys of `key`, as a
+        16k-100k rows). Each compiled loop iteration runs at least
+        `_MIN_UPDATES_PER_LOOP_ITERATION` updates.
+        Block i draws from the i-th of `n` keys of `key`, as a
         block-by-block loop would. A statically unrolled block needs no `lax.cond` on the
         update counter, which under vmap (seeds) would compute the actor update at every
         step.
@@ -441,6 +454,7 @@ class Agent:
         prob, walk = ts.hparams.relabel_prob, cfg.replay.walk_fraction
         keys = jax.random.split(key, n)
         size = min(n, _SAMPLE_CHUNK)
+        unroll = -(-_MIN_UPDATES_PER_LOOP_ITERATION // sac.block_size(cfg.sac))
         full = n - n % size
 
         def draw_block(key):  # -> leaves (block_size, B, ...)
@@ -459,7 +473,7 @@ class Agent:
         def chunk(sac_state, chunk_keys):  # (m,) keys -> m blocks
             draw_keys, update_keys = jax.vmap(jax.random.split, out_axes=1)(chunk_keys)
             drawn = jax.vmap(draw_block)(draw_keys)
-            return jax.lax.scan(update_block, sac_state, (drawn, update_keys))
+            return jax.lax.scan(update_block, sac_state, (drawn, update_keys), unroll=unroll)
 
         sac_state, metrics = jax.lax.scan(chunk, ts.sac, keys[:full].reshape(-1, size))
         metrics = jax.tree.map(lambda x: x.reshape(-1), metrics)  # (full,) per block
