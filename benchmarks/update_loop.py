@@ -13,6 +13,7 @@ variant's env steps/s and its ratio to brax SAC (best / best and the paired medi
 from __future__ import annotations
 
 import argparse
+import sys
 
 from benchmarks import brax_sac, results, trainer
 from benchmarks.sac_update import SIZES
@@ -44,7 +45,8 @@ def main(argv=None) -> int:
     parser.add_argument("--epochs", type=int, default=7)
     args = parser.parse_args(argv)
     if args.epochs < 1 or min(args.variants) < 1:
-        parser.exit(2, "--epochs and every --variants value must be >= 1\n")
+        print("error: --epochs and every --variants value must be >= 1", file=sys.stderr)
+        return 2
     brax, ours = variant_rates(args.size, args.variants, args.epochs)
     print("brax SAC env steps/s:", [round(x) for x in brax])
     for name, rates in ours.items():

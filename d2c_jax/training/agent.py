@@ -440,11 +440,10 @@ class Agent:
         from the current classifier inside the loop, one call on block_size x B rows (a
         classifier forward runs fastest on ~1k rows on a CPU: 50-58 GMAC/s, 32-35 at
         16k-100k rows). Each compiled loop iteration runs at least
-        `_MIN_UPDATES_PER_LOOP_ITERATION` updates.
-        Block i draws from the i-th of `n` keys of `key`, as a
-        block-by-block loop would. A statically unrolled block needs no `lax.cond` on the
-        update counter, which under vmap (seeds) would compute the actor update at every
-        step.
+        `_MIN_UPDATES_PER_LOOP_ITERATION` updates. Block i draws from the i-th of `n` keys
+        of `key`, as a block-by-block loop would. A statically unrolled block needs no
+        `lax.cond` on the update counter, which under vmap (seeds) would compute the actor
+        update at every step.
         """
         if n == 0:
             return ts, {}
