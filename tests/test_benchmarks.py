@@ -2,6 +2,7 @@
 paired ratio) and the brax SAC timing harness."""
 
 import jax
+import jax.numpy as jnp
 import numpy as np
 import pytest
 
@@ -223,3 +224,56 @@ def test_update_loop_refuses_counts_below_one(argv, capsys):
     assert capsys.readouterr().err.splitlines()[0] == (
         "error: --epochs and every --variants value must be >= 1"
     )
+
+
+def test_update_order_refuses_epochs_below_one(capsys):
+    from benchmarks import update_order
+
+    assert update_order.main(["--epochs", "0"]) == 2
+    assert capsys.readouterr().err.splitlines()[0] == "error: --epochs must be >= 1"
+
+
+def test_update_order_simultaneous_block_steps_both_from_the_old_parameters():
+    """brax's order: the critic step is ours bitwise (same state, same key); the actor step
+    is taken against the pre-update critic, so it differs from ours, which sees the
+    updated one, and equals `_actor_step` on the old state."""
+    import chex
+
+    from benchmarks import update_order
+    from d2c_jax.config import SACConfig
+    from d2c_jax.core import networks, sac, types
+
+    class Env:
+        obs_dim, action_dim, goal_dim = 3, 2, 2
+        normalize_obs = staticmethod(lambda obs: obs)
+        normalize_goal = staticmethod(lambda goal: goal)
+
+    env = Env()
+    cfg = SACConfig(
+        hidden_sizes=(16, 16), batch_size=8, actor_update_every=1, target_update_every=1
+    )
+    nets, opt, hp = networks.make_networks(cfg, env), sac.make_optimizers(), sac.hyperparams(cfg)
+    state = sac.init_sac(nets, opt, env, hp, jax.random.key(0))
+    k = jax.random.split(jax.random.key(1), 5)
+    batch = types.Batch(
+        obs=jax.random.normal(k[0], (1, 8, 3)),
+        action=jax.random.uniform(k[1], (1, 8, 2), minval=-1, maxval=1),
+        reward=jax.random.uniform(k[2], (1, 8)),
+        next_obs=jax.random.normal(k[3], (1, 8, 3)),
+        goal=jax.random.normal(k[4], (1, 8, 2)),
+        mask=jnp.ones((1, 8)),
+    )
+    key = jax.random.key(2)
+    ours, _ = sac.update_sac_block(cfg, nets, opt, hp, state, batch, env, key)
+    brax_order, _ = update_order.simultaneous_block(cfg, nets, opt, hp, state, batch, env, key)
+    chex.assert_trees_all_equal(brax_order.critic_params, ours.critic_params)
+    chex.assert_trees_all_equal(brax_order.target_critic_params, ours.target_critic_params)
+    key_actor = jax.random.split(jax.random.split(key, 1)[0])[1]
+    feats = networks.actor_input(env, batch.obs[0], batch.goal[0])
+    acted = sac._actor_step(cfg, nets, opt, hp, state, feats, env.action_dim, key_actor)
+    chex.assert_trees_all_equal(brax_order.actor_params, acted.actor_params)
+    chex.assert_trees_all_equal(brax_order.log_alpha, acted.log_alpha)
+    differs = jax.tree.map(
+        lambda a, b: bool(jnp.any(a != b)), brax_order.actor_params, ours.actor_params
+    )
+    assert any(jax.tree.leaves(differs))
