@@ -31,11 +31,30 @@ def variant_rates(size: str, variants: list[int], epochs: int) -> tuple[list, di
             ours[f"{v} per iteration"] = trainer.TimedRun(config)
     finally:
         agent_lib._MIN_UPDATES_PER_LOOP_ITERATION = default
+    return rates_beside_brax(size, ours, epochs)
+
+
+def rates_beside_brax(
+    size: str, ours: dict[str, trainer.TimedRun], epochs: int
+) -> tuple[list[float], dict[str, list[float]]]:
+    """brax SAC's env steps/s over `epochs` timed epochs at SIZES[size], with one timed
+    round of each of `ours` before every one of them: (brax's rates, name -> our rates)."""
     rounds: list[dict[str, float]] = []
     brax = brax_sac.epoch_rates(
         size, timed_epochs=epochs, after_epoch=lambda: rounds.append(trainer.alternate_rounds(ours))
     )
     return brax, {name: [r[name] for r in rounds] for name in ours}
+
+
+def print_ratios(brax: list[float], ours: dict[str, list[float]]) -> None:
+    """Each variant's env steps/s and its ratio to brax SAC (best / best, paired median)."""
+    print("brax SAC env steps/s:", [round(x, 1) for x in brax])
+    for name, rates in ours.items():
+        print(
+            f"{name}: {[round(x, 1) for x in rates]}, best/best {max(rates) / max(brax):.3f}x, "
+            f"paired median {results.paired_ratio(rates, brax):.3f}x",
+            flush=True,
+        )
 
 
 def main(argv=None) -> int:
@@ -47,14 +66,7 @@ def main(argv=None) -> int:
     if args.epochs < 1 or min(args.variants) < 1:
         print("error: --epochs and every --variants value must be >= 1", file=sys.stderr)
         return 2
-    brax, ours = variant_rates(args.size, args.variants, args.epochs)
-    print("brax SAC env steps/s:", [round(x) for x in brax])
-    for name, rates in ours.items():
-        print(
-            f"{name}: {[round(x) for x in rates]}, best/best {max(rates) / max(brax):.3f}x, "
-            f"paired median {results.paired_ratio(rates, brax):.3f}x",
-            flush=True,
-        )
+    print_ratios(*variant_rates(args.size, args.variants, args.epochs))
     return 0
 
 

@@ -21,7 +21,7 @@ import sys
 
 import jax
 
-from benchmarks import brax_sac, results, trainer
+from benchmarks import results, trainer, update_loop
 from benchmarks.sac_update import SIZES
 from d2c_jax.core import sac
 
@@ -57,11 +57,7 @@ def order_rates(size: str, epochs: int) -> tuple[list[float], dict[str, list[flo
         ours["simultaneous"] = trainer.TimedRun(config)
     finally:
         sac.update_sac_block = default
-    rounds: list[dict[str, float]] = []
-    brax = brax_sac.epoch_rates(
-        size, timed_epochs=epochs, after_epoch=lambda: rounds.append(trainer.alternate_rounds(ours))
-    )
-    return brax, {name: [r[name] for r in rounds] for name in ours}
+    return update_loop.rates_beside_brax(size, ours, epochs)
 
 
 def main(argv=None) -> int:
@@ -73,14 +69,7 @@ def main(argv=None) -> int:
         print("error: --epochs must be >= 1", file=sys.stderr)
         return 2
     print(results.hardware(), flush=True)
-    brax, ours = order_rates(args.size, args.epochs)
-    print("brax SAC env steps/s:", [round(x, 1) for x in brax])
-    for name, rates in ours.items():
-        print(
-            f"{name}: {[round(x, 1) for x in rates]}, best/best {max(rates) / max(brax):.3f}x, "
-            f"paired median {results.paired_ratio(rates, brax):.3f}x",
-            flush=True,
-        )
+    update_loop.print_ratios(*order_rates(args.size, args.epochs))
     return 0
 
 
