@@ -1,4 +1,4 @@
-"""The package as a non-editable install gets it: the wheel that `pip install .` and Colab's
+"""What a non-editable install receives: the wheel that `pip install .` and Colab's
 `pip install git+...` (notebooks/) build must hold every module and the env models.
 
 An editable install (`pip install -e`, what CI and the README use) imports from the
@@ -38,9 +38,10 @@ def wheel(tmp_path_factory) -> pathlib.Path:
             ROOT / package, source / package, ignore=shutil.ignore_patterns("__pycache__")
         )
     cmd = [sys.executable, "-m", "pip", "wheel", "-q", "--no-deps", "-w", str(out), str(source)]
-    subprocess.run(cmd, check=True, capture_output=True, text=True)
-    (built,) = out.glob("d2c_jax-*.whl")
-    return built
+    built = subprocess.run(cmd, capture_output=True, text=True)
+    assert built.returncode == 0, built.stderr
+    (wheel_file,) = out.glob("d2c_jax-*.whl")
+    return wheel_file
 
 
 def test_the_wheel_holds_every_module_and_env_model(wheel):
@@ -50,12 +51,13 @@ def test_the_wheel_holds_every_module_and_env_model(wheel):
     assert sorted(sources - names) == []
 
 
-def test_the_installed_wheel_trains_outside_the_checkout(wheel, tmp_path):
+def test_the_installed_wheel_imports_and_builds_an_env_outside_the_checkout(wheel, tmp_path):
     """Installed alone (dependencies from this environment), the package imports from the
     install, not from the checkout, and builds an env from its packaged model."""
     target = tmp_path / "site"
     install = [sys.executable, "-m", "pip", "install", "-q", "--no-deps", "--target", str(target)]
-    subprocess.run([*install, str(wheel)], check=True, capture_output=True, text=True)
+    installed = subprocess.run([*install, str(wheel)], capture_output=True, text=True)
+    assert installed.returncode == 0, installed.stderr
     # This environment's editable install of the checkout answers imports by name through
     # a finder of its own: the probe drops it, so only the installed copy can be found.
     probe = (
