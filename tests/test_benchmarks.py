@@ -241,10 +241,11 @@ def test_update_order_simultaneous_block_steps_both_from_the_old_parameters():
 
     from benchmarks import update_order
     from d2c_jax.config import SACConfig
-    from d2c_jax.core import networks, sac, types
+    from d2c_jax.core import networks, sac
 
     class Env:
         obs_dim, action_dim, goal_dim = 3, 2, 2
+        goal_low, goal_high = np.array([-1.0, -1.0]), np.array([1.0, 1.0])
         normalize_obs = staticmethod(lambda obs: obs)
         normalize_goal = staticmethod(lambda goal: goal)
 
@@ -254,15 +255,7 @@ def test_update_order_simultaneous_block_steps_both_from_the_old_parameters():
     )
     nets, opt, hp = networks.make_networks(cfg, env), sac.make_optimizers(), sac.hyperparams(cfg)
     state = sac.init_sac(nets, opt, env, hp, jax.random.key(0))
-    k = jax.random.split(jax.random.key(1), 5)
-    batch = types.Batch(
-        obs=jax.random.normal(k[0], (1, 8, 3)),
-        action=jax.random.uniform(k[1], (1, 8, 2), minval=-1, maxval=1),
-        reward=jax.random.uniform(k[2], (1, 8)),
-        next_obs=jax.random.normal(k[3], (1, 8, 3)),
-        goal=jax.random.normal(k[4], (1, 8, 2)),
-        mask=jnp.ones((1, 8)),
-    )
+    batch = sac_update.random_batch(env, 8, 1, seed=1)  # one block of one batch of 8
     key = jax.random.key(2)
     ours, _ = sac.update_sac_block(cfg, nets, opt, hp, state, batch, env, key)
     brax_order, _ = update_order.simultaneous_block(cfg, nets, opt, hp, state, batch, env, key)
