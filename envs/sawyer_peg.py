@@ -28,10 +28,13 @@ pad under it.
 
 **Contacts.** Only explicit pairs collide (every geom has contype = conaffinity = 0):
 peg-table (box-plane, condim 3, μ 0.6), peg-central wall (box-box, condim 3, μ 0.3),
-peg-retaining walls (each a half-space plane at a table edge: box-plane, condim 1,
-frictionless; the same as the 0.06-high boxes for a peg below their top, cheaper than
-box-box, and a thrown peg still stays on the table), pads-peg (box-box, condim 3, μ 1.5):
-32 contacts, 64 constraint rows, plus 3 for the equality and 2 for the finger limits. The
+peg-retaining walls (0.06-high boxes along the table's edges: box-box, condim 1,
+frictionless), pads-peg (box-box, condim 3, μ 1.5): 32 contacts, 80 constraint rows, plus
+3 for the equality and 2 for the finger limits. The retaining walls were half-space
+planes (box-plane, about 10% cheaper per env step) until 2026-12-05; a plane is a wall of
+unbounded height, and a learned pick & place policy lifted the peg by pressing it onto the
+back one with a pad and climbing (docs/DEVIATIONS.md). A peg tipped over a 0.06 wall now
+falls off the table, as it would off a real one. The
 hand and fingers collide with nothing else (they pass through walls; the hand bounds keep
 them over the table). Every pair has solref (0.005, 1), 2 substeps, the stiffest MuJoCo
 advises: a peg pinched or pressed into the table or a wall sinks a few millimetres at

@@ -20,7 +20,7 @@ from envs.sawyer_peg import HAND_HIGH, HAND_LOW, HAND_START, SawyerPeg
 
 TASKS = ("push", "pick_place")
 H = 200
-SCRIPT, WALL, CONST, RANDOM, SEEK = 0, 1, 2, 3, 4
+SCRIPT, WALL, CONST, RANDOM, SEEK, PIN = 0, 1, 2, 3, 4, 5
 N_RANDOM = 50  # uniform random: 50 envs x 200 steps = 10,000 steps
 N_SEEK = 25  # random drifting toward the peg: 25 envs x 200 steps
 WALL_HEIGHTS = (0.01, 0.02, 0.035)  # hand heights of the pushes into the central wall
@@ -88,6 +88,23 @@ def wall_push(obs, height, phase):
     return jnp.append(action, 1.0), phase
 
 
+def rim_pin(obs, phase):
+    """Shoves the peg onto the back retaining wall with a half-open pad, presses it there and
+    climbs: how a learned policy lifted the peg while that wall was a half-space plane."""
+    hand, peg = obs[:3], obs[4:]
+    above = jnp.stack([peg[0], peg[1] - 0.07, 0.2])
+    low = jnp.stack([peg[0], peg[1] - 0.07, 0.03])
+    action = jnp.select(
+        [phase == 0, phase == 1, phase == 2],
+        [_move(hand, above), _move(hand, low), jnp.array([0.0, 1.0, 0.0])],
+        jnp.array([0.0, 1.0, 1.0]),  # keep pressing toward the wall while climbing
+    )
+    phase = jnp.where((phase == 0) & (jnp.linalg.norm(hand - above) < 0.005), 1, phase)
+    phase = jnp.where((phase == 1) & (hand[2] < 0.035), 2, phase)
+    phase = jnp.where((phase == 2) & (hand[1] > HAND_HIGH[1] - 0.006), 3, phase)
+    return jnp.append(action, -0.5), phase
+
+
 # --- the one compiled rollout per task ---------------------------------------------------
 def make_rollout(env: SawyerPeg):
     """jit(vmap over envs, scan over H steps) of env.reset_with_goal / env.step."""
@@ -99,15 +116,19 @@ def make_rollout(env: SawyerPeg):
     def policy(obs, goal, phase, key, mode, param):
         a_script, p_script = controller(obs, goal, phase)
         a_wall, p_wall = wall_push(obs, param[0], phase)
+        a_pin, p_pin = rim_pin(obs, phase)
         a_random = jax.random.uniform(key, (4,), minval=-1.0, maxval=1.0)
         # Random actions drifting toward the peg: contact-rich (pinches, pushes, lifts).
         a_seek = jnp.clip(a_random + jnp.append(_move(obs[:3], obs[4:], 0.5), 0.0), -1, 1)
         action = jnp.select(
-            [mode == SCRIPT, mode == WALL, mode == CONST, mode == SEEK],
-            [a_script, a_wall, param, a_seek],
+            [mode == SCRIPT, mode == WALL, mode == CONST, mode == SEEK, mode == PIN],
+            [a_script, a_wall, param, a_seek, a_pin],
             a_random,
         )
-        return action, jnp.select([mode == SCRIPT, mode == WALL], [p_script, p_wall], phase)
+        phase = jnp.select(
+            [mode == SCRIPT, mode == WALL, mode == PIN], [p_script, p_wall, p_pin], phase
+        )
+        return action, phase
 
     def body(carry, key):
         state, phase, mode, param = carry
@@ -137,6 +158,7 @@ def _batch(env: SawyerPeg):
     rows = [(g, SCRIPT, np.zeros(4)) for g in script_goals]
     rows += [(env.goal_points[0], WALL, np.array([h, 0, 0, 0])) for h in WALL_HEIGHTS]
     rows += [(env.goal_points[0], CONST, np.array(CONST_ACTION))]
+    rows += [(env.goal_points[0], PIN, np.zeros(4))]
     for mode, n in ((RANDOM, N_RANDOM), (SEEK, N_SEEK)):
         rows += [(env.goal_points[i % 3], mode, np.zeros(4)) for i in range(n)]
     goals, modes, params = zip(*rows, strict=True)
@@ -222,16 +244,19 @@ def test_model_matches_spec(env):
     wall_y = 0.25 if env.task == "push" else 0.4  # pick & place: the whole table depth
     np.testing.assert_allclose(m.geom("central_wall").size, [0.01, wall_y, 0.05])
     np.testing.assert_allclose(m.geom("central_wall").pos, [0.0, 0.6, 0.05])
-    # Retaining walls: half-spaces at the table edges, facing the table.
-    for name, pos, normal in (
-        ("rim_x_neg", -0.7, [1, 0, 0]), ("rim_x_pos", 0.7, [-1, 0, 0]),
-        ("rim_y_neg", 0.2, [0, 1, 0]), ("rim_y_pos", 1.0, [0, -1, 0]),
+    # Retaining walls: 0.06-high boxes whose inner faces are the table's edges (a half-space
+    # plane would be a wall of unbounded height; test_peg_pinned_on_back_wall_...).
+    for name, axis, edge in (
+        ("rim_x_neg", 0, -0.7), ("rim_x_pos", 0, 0.7), ("rim_y_neg", 1, 0.2), ("rim_y_pos", 1, 1.0),
     ):  # fmt: skip
-        axis = 0 if "x" in name else 1
-        np.testing.assert_allclose(m.geom(name).pos[axis], pos)
-        rot = np.zeros(9)
-        mujoco.mju_quat2Mat(rot, m.geom(name).quat)
-        np.testing.assert_allclose(rot.reshape(3, 3)[:, 2], normal, atol=1e-12)
+        geom = m.geom(name)
+        assert geom.type == mujoco.mjtGeom.mjGEOM_BOX
+        np.testing.assert_allclose(geom.quat, [1, 0, 0, 0])
+        table_centre = (0.0, 0.6)[axis]
+        inner = geom.pos[axis] - np.sign(geom.pos[axis] - table_centre) * geom.size[axis]
+        np.testing.assert_allclose(inner, edge, atol=1e-9)
+        np.testing.assert_allclose(geom.pos[2] + geom.size[2], 0.06, atol=1e-9)
+        np.testing.assert_allclose(geom.pos[2] - geom.size[2], 0.0, atol=1e-9)
     # Contacts only through the explicit pairs, all of them with the peg.
     assert not (m.geom_contype | m.geom_conaffinity).any()
     names = [m.geom(int(g)).name for g in np.ravel([m.pair_geom1, m.pair_geom2], "F")]
@@ -463,6 +488,23 @@ def test_peg_cannot_pass_central_wall(run):
         assert peg_x[-1] < 0.08  # it did reach the wall ...
         assert peg_z.max() < 0.05  # ... without popping up
         assert hand_x > peg_x[-1] + 0.06  # and the hand stayed behind it
+
+
+def test_peg_pinned_on_back_wall_cannot_be_raised_above_it(run):
+    """A pad presses the peg onto the 0.06-high back wall and climbs to the hand's ceiling.
+    While that wall was a half-space plane (a wall of unbounded height) the pad's friction
+    carried the peg up the wall with it to the ceiling (z = 0.49), a lift a learned policy
+    found and used (docs/DEVIATIONS.md, "The Sawyer table's retaining walls"). Now the peg
+    cannot be raised that way: it tips over the wall's top and falls off the table."""
+    (i,) = np.nonzero(run["modes"] == PIN)[0]
+    hand, peg = run["obs"][:, i, :3], run["obs"][:, i, 4:]
+    assert peg[:, 1].max() > 0.97  # the peg did reach the wall (its face at y = 1.0) ...
+    assert hand[-1, 2] > 0.45  # ... and the pad climbed past it to the ceiling
+    # At most as high as the peg standing on its end on the wall's top (0.06 + 0.06) ...
+    assert peg[:, 2].max() < 0.13
+    # ... as it tips over, and it ends lying beyond the wall (outer face at y = 1.02).
+    np.testing.assert_allclose(peg[-1, 2], 0.02, atol=0.005)
+    assert peg[-1, 1] > 1.02 + 0.02
 
 
 def test_hand_moves_one_centimetre_per_step_within_bounds(run):
