@@ -493,7 +493,7 @@ def test_peg_cannot_pass_central_wall(run):
 def test_peg_pinned_on_back_wall_cannot_be_raised_above_it(run):
     """A pad presses the peg onto the 0.06-high back wall and climbs to the hand's ceiling.
     While that wall was a half-space plane (a wall of unbounded height) the pad's friction
-    carried the peg up the wall with it to the ceiling (z = 0.49), a lift a learned policy
+    carried the peg up the wall with it to the ceiling (z = 0.50), a lift a learned policy
     found and used (docs/DEVIATIONS.md, "The Sawyer table's retaining walls"). Now the peg
     cannot be raised that way: it tips over the wall's top and falls off the table."""
     (i,) = np.nonzero(run["modes"] == PIN)[0]
