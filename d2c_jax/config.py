@@ -92,6 +92,8 @@ class SACConfig:
     clip_target: bool = False
     """Clip the soft TD target to the return's range [0, 1/(1 - gamma)] of rewards in
     [0, 1], as HER implementations clip it (off: the paper's SAC)."""
+    critic_layer_norm: bool = False
+    """LayerNorm after each hidden Dense of the critics (off: the paper's SAC)."""
     log_std_min: float = -10.0
     """Lower end of the smooth log-std squashing."""
     log_std_max: float = 2.0

@@ -55,6 +55,43 @@ def test_twin_critic_params_are_stacked_and_distinct(nets):
     assert not np.allclose(q[0], q[1])
 
 
+def _critic_by_hand(member_params: dict, x: np.ndarray, n_hidden: int) -> np.ndarray:
+    """One critic member's Q for inputs x (B, f): Dense -> LayerNorm (biased variance,
+    flax's eps 1e-6) -> ReLU per hidden layer, then the linear output, in float64."""
+    h = x.astype(np.float64)
+    for i in range(n_hidden):
+        dense, norm = member_params[f"Dense_{i}"], member_params[f"LayerNorm_{i}"]
+        h = h @ np.asarray(dense["kernel"], np.float64) + np.asarray(dense["bias"])
+        h = (h - h.mean(-1, keepdims=True)) / np.sqrt(h.var(-1, keepdims=True) + 1e-6)
+        h = np.maximum(h * np.asarray(norm["scale"]) + np.asarray(norm["bias"]), 0.0)
+    out = member_params[f"Dense_{n_hidden}"]
+    return (h @ np.asarray(out["kernel"], np.float64) + np.asarray(out["bias"]))[:, 0]
+
+
+def test_critic_layer_norm_matches_a_hand_computed_forward_pass():
+    cfg = SACConfig(hidden_sizes=(32, 16), critic_layer_norm=True)
+    critic = networks.make_networks(cfg, StubEnv()).critic
+    params = critic.init(jax.random.key(1), jnp.zeros((1, 6)), jnp.zeros((1, 2)))
+    # Non-trivial LayerNorm scales and offsets, so that both enter the check.
+    params = jax.tree_util.tree_map_with_path(
+        lambda path, leaf: leaf * 1.7 - 0.3 if "LayerNorm" in jax.tree_util.keystr(path) else leaf,
+        params,
+    )
+    feats = 3.0 * jax.random.normal(jax.random.key(2), (7, 6))
+    action = jax.random.uniform(jax.random.key(3), (7, 2), minval=-1.0, maxval=1.0)
+    q = critic.apply(params, feats, action)
+    chex.assert_shape(q, (2, 7))
+    x = np.concatenate([np.asarray(feats), np.asarray(action)], axis=-1)
+    members = params["params"]["members"]["MLP_0"]
+    for m in range(networks.N_CRITICS):
+        member = jax.tree.map(lambda leaf, m=m: leaf[m], members)
+        np.testing.assert_allclose(q[m], _critic_by_hand(member, x, 2), rtol=2e-4, atol=2e-4)
+    # Off (the paper's SAC), the critic has no LayerNorm parameters at all.
+    plain = networks.make_networks(SACConfig(hidden_sizes=(32, 16)), StubEnv()).critic
+    plain_params = plain.init(jax.random.key(1), jnp.zeros((1, 6)), jnp.zeros((1, 2)))
+    assert "LayerNorm" not in str(jax.tree_util.tree_structure(plain_params))
+
+
 def _actor_with_raw_log_std(nets, raw: float):
     """Actor params whose raw log-std output is the constant `raw` (last layer zeroed)."""
     params = nets.actor.init(jax.random.key(0), jnp.zeros((1, 6)))

@@ -6,6 +6,7 @@ library's. The three probes share one compiled program (their parameters are tra
 """
 
 import dataclasses
+import functools
 from typing import NamedTuple
 
 import chex
@@ -91,18 +92,28 @@ def parts(cfg: SACConfig, env):
     return networks.make_networks(cfg, env), sac.make_optimizers(), sac.hyperparams(cfg)
 
 
-@jax.jit
-def run_probe(p: Probe, key):
-    """init + 3000 updates (in blocks); returns Q (2 critics, s0/s1, 9 actions) and
-    tanh(mean) at s0/s1."""
-    env = ProbeEnv()
-    nets, opt, hp = parts(PROBE_CFG, env)
-    n = sac.block_size(PROBE_CFG)
+class OffOriginProbeEnv(ProbeEnv):
+    """ProbeEnv with its features shifted by 0.5, so that s0 with a = 0 is not an all-zero
+    network input (see `test_probe_two_steps_with_critic_layer_norm`)."""
+
+    def normalize_obs(self, obs):
+        return obs + 0.5
+
+
+PROBE_ENV, OFF_ORIGIN_PROBE_ENV = ProbeEnv(), OffOriginProbeEnv()
+
+
+@functools.partial(jax.jit, static_argnums=(2, 3))
+def run_probe(p: Probe, key, cfg: SACConfig = PROBE_CFG, env: ProbeEnv = PROBE_ENV):
+    """init + 3000 updates (in blocks) of `cfg` on `env`; returns Q (2 critics, s0/s1, 9
+    actions) and tanh(mean) at s0/s1."""
+    nets, opt, hp = parts(cfg, env)
+    n = sac.block_size(cfg)
 
     def body(s, k):
         k_batch, k_update = jax.random.split(k)
         batches = jax.vmap(lambda kb: probe_batch(p, kb))(jax.random.split(k_batch, n))
-        return sac.update_sac_block(PROBE_CFG, nets, opt, hp, s, batches, env, k_update)
+        return sac.update_sac_block(cfg, nets, opt, hp, s, batches, env, k_update)
 
     k_init, k_run = jax.random.split(key)
     state = sac.init_sac(nets, opt, env, hp, k_init)
@@ -115,9 +126,10 @@ def run_probe(p: Probe, key):
     return q.reshape(2, 2, 9), best[:, 0], metrics["sac/alpha"]
 
 
-def probe(p: Probe):
-    """Runs a probe (all share one compiled program); alpha must stay fixed at ~0."""
-    q, best, alpha = run_probe(p, jax.random.key(0))
+def probe(p: Probe, cfg: SACConfig = PROBE_CFG, env: ProbeEnv = PROBE_ENV):
+    """Runs a probe (all of one `cfg` and `env` share one compiled program); alpha must
+    stay fixed at ~0."""
+    q, best, alpha = run_probe(p, jax.random.key(0), cfg, env)
     np.testing.assert_allclose(alpha, PROBE_CFG.init_alpha, rtol=1e-5)
     return np.asarray(q), np.asarray(best)
 
@@ -143,6 +155,20 @@ def test_probe_action_dependent_reward_actor_picks_best_action():
     np.testing.assert_allclose(best[1], 0.3, atol=0.1)
     parabola = np.broadcast_to(1.0 - (PROBE_ACTIONS - 0.3) ** 2, q[:, 1].shape)
     np.testing.assert_allclose(q[:, 1], parabola, atol=0.05)
+
+
+def test_probe_two_steps_with_critic_layer_norm():
+    """The same two-step values with LayerNorm in the critics (`critic_layer_norm`).
+
+    On the plain probe the LayerNorm critic misses Q(s0, a = 0) by 0.1 (0.70): there the
+    network's input is all zeros, the first layer's pre-activation is its bias alone, and
+    LayerNorm, which is invariant to the scale of its input, jumps between that and the
+    direction of W x for small x. Real features are never all zero, so the probe is run
+    with its features shifted off the origin."""
+    cfg = dataclasses.replace(PROBE_CFG, critic_layer_norm=True)
+    q, _ = probe(Probe(first=0.5, c=1.0, k=0.0, a_star=0.0), cfg, OFF_ORIGIN_PROBE_ENV)
+    np.testing.assert_allclose(q[:, 1], 1.0, atol=0.05)
+    np.testing.assert_allclose(q[:, 0], cfg.gamma, atol=0.05)
 
 
 # --- losses -----------------------------------------------------------------------------

@@ -32,17 +32,22 @@ N_CRITICS = 2
 
 class MLP(nn.Module):
     """MLP with a linear output layer: ReLU hidden units and flax's default (LeCun
-    normal) weights unless `activation` and `kernel_init` say otherwise."""
+    normal) weights unless `activation` and `kernel_init` say otherwise; with
+    `layer_norm`, each hidden layer is Dense -> LayerNorm -> activation."""
 
     hidden_sizes: tuple[int, ...]
     out_dim: int
     activation: Callable[[jax.Array], jax.Array] = nn.relu
     kernel_init: Callable = nn.initializers.lecun_normal()
+    layer_norm: bool = False
 
     @nn.compact
     def __call__(self, x: jax.Array) -> jax.Array:
         for width in self.hidden_sizes:
-            x = self.activation(nn.Dense(width, kernel_init=self.kernel_init)(x))
+            x = nn.Dense(width, kernel_init=self.kernel_init)(x)
+            if self.layer_norm:
+                x = nn.LayerNorm()(x)
+            x = self.activation(x)
         return nn.Dense(self.out_dim, kernel_init=self.kernel_init)(x)
 
 
@@ -95,11 +100,12 @@ class QNetwork(nn.Module):
     """One critic Q(s, a, g): (..., feat_dim), (..., action_dim) -> (...,)."""
 
     hidden_sizes: tuple[int, ...]
+    layer_norm: bool = False
 
     @nn.compact
     def __call__(self, features: jax.Array, action: jax.Array) -> jax.Array:
         x = jnp.concatenate([features, action], axis=-1)
-        return MLP(self.hidden_sizes, 1)(x)[..., 0]
+        return MLP(self.hidden_sizes, 1, layer_norm=self.layer_norm)(x)[..., 0]
 
 
 class TwinCritic(nn.Module):
@@ -110,6 +116,7 @@ class TwinCritic(nn.Module):
     """
 
     hidden_sizes: tuple[int, ...]
+    layer_norm: bool = False
 
     @nn.compact
     def __call__(self, features: jax.Array, action: jax.Array) -> jax.Array:
@@ -121,7 +128,7 @@ class TwinCritic(nn.Module):
             out_axes=0,
             axis_size=N_CRITICS,
         )
-        return stacked(self.hidden_sizes, name="members")(features, action)
+        return stacked(self.hidden_sizes, self.layer_norm, name="members")(features, action)
 
 
 class SACNetworks(NamedTuple):
@@ -139,7 +146,8 @@ def make_networks(cfg: SACConfig, env) -> SACNetworks:
         log_std_min=cfg.log_std_min,
         log_std_max=cfg.log_std_max,
     )
-    return SACNetworks(actor=actor, critic=TwinCritic(hidden_sizes=tuple(cfg.hidden_sizes)))
+    critic = TwinCritic(hidden_sizes=tuple(cfg.hidden_sizes), layer_norm=cfg.critic_layer_norm)
+    return SACNetworks(actor=actor, critic=critic)
 
 
 # --- features ---------------------------------------------------------------------------
