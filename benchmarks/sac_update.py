@@ -86,7 +86,7 @@ def _timed(fn) -> float:
 
 
 # --- d2c_jax -----------------------------------------------------------------------------
-def sac_config(size: str, actor_every: int) -> config.SACConfig:
+def sac_config(size: str, actor_every: int, layer_norm: bool = False) -> config.SACConfig:
     hidden, batch = SIZES[size]
     return dataclasses.replace(
         config.SACConfig(),
@@ -94,6 +94,7 @@ def sac_config(size: str, actor_every: int) -> config.SACConfig:
         batch_size=batch,
         actor_update_every=actor_every,
         target_update_every=actor_every,
+        critic_layer_norm=layer_norm,
     )
 
 
@@ -118,16 +119,16 @@ def random_batch(env, batch: int, n: int, seed: int = 0) -> types.Batch:
 
 
 def jax_update_rate(
-    size: str, actor_every: int, n_updates: int, time_it: bool = True
+    size: str, actor_every: int, n_updates: int, time_it: bool = True, layer_norm: bool = False
 ) -> tuple[float, float]:
     """(updates/s, XLA-counted FLOPs per update) of d2c_jax's update, as the trainer runs it.
 
     `update_sac_block` over a lax.scan of blocks; one fixed batch per block member (the
     sampling is timed in the trainer benchmark, not here). time_it=False: FLOPs only
-    (updates/s NaN).
+    (updates/s NaN). layer_norm: LayerNorm in the critics (`sac.critic_layer_norm`).
     """
     env = envs.make("medium_maze")
-    cfg = sac_config(size, actor_every)
+    cfg = sac_config(size, actor_every, layer_norm)
     nets, opt, hp = networks.make_networks(cfg, env), sac.make_optimizers(), sac.hyperparams(cfg)
     state = sac.init_sac(nets, opt, env, hp, jax.random.key(0))
     block = sac.block_size(cfg)
@@ -333,12 +334,36 @@ def run(sizes, with_torch: bool = True) -> str:
     )
 
 
+def layer_norm_cost(sizes: list[str], rounds: int = 2) -> str:
+    """Updates/s without and with LayerNorm in the critics, alternating `rounds` times in
+    this process (Table 2's schedule: actor and target every 2 updates), and the ratio of
+    the best rates."""
+    lines = []
+    for size in sizes:
+        best = {False: 0.0, True: 0.0}
+        for _ in range(rounds):
+            for layer_norm in (False, True):
+                rate, _ = jax_update_rate(size, 2, TIMED_UPDATES[size], layer_norm=layer_norm)
+                best[layer_norm] = max(best[layer_norm], rate)
+        lines.append(
+            f"{size}: {best[False]:.0f} updates/s plain, {best[True]:.0f} with critic "
+            f"LayerNorm ({best[True] / best[False]:.2f}x)"
+        )
+    return "\n".join(lines)
+
+
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--sizes", nargs="+", default=list(SIZES), choices=list(SIZES))
     parser.add_argument("--no-torch", action="store_true", help="d2c_jax only")
     parser.add_argument("--write", action="store_true", help="update benchmarks/RESULTS.md")
+    parser.add_argument(
+        "--layer-norm-cost", action="store_true", help="only: the critic LayerNorm's cost"
+    )
     args = parser.parse_args(argv)
+    if args.layer_norm_cost:
+        print(layer_norm_cost(args.sizes))
+        return 0
     results.report("SAC update", run(args.sizes, with_torch=not args.no_torch), args.write)
     return 0
 

@@ -31,6 +31,16 @@ def test_update_flops_agree_with_xla_cost_analysis():
     assert 1.0 <= xla / ours < 1.03, (xla, ours)
 
 
+def test_critic_layer_norm_adds_little_arithmetic_to_the_update():
+    """LayerNorm is a few elementwise operations per hidden unit of each critic (forward and
+    backward), where a unit's matmul costs 2 x fan-in FLOPs: XLA counts more FLOPs with it,
+    but under 10% more at the small size (its cost on a CPU is memory traffic, measured by
+    `python -m benchmarks.sac_update --layer-norm-cost`)."""
+    _, plain = sac_update.jax_update_rate("small", 1, n_updates=1, time_it=False)
+    _, with_ln = sac_update.jax_update_rate("small", 1, n_updates=1, time_it=False, layer_norm=True)
+    assert 1.0 < with_ln / plain < 1.1, (plain, with_ln)
+
+
 def test_write_section_replaces_in_place(tmp_path):
     path = tmp_path / "RESULTS.md"
     results.write_section("A", "one", path)
