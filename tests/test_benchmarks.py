@@ -1,6 +1,8 @@
 """The benchmark's own arithmetic (the SAC update's FLOP count, the results file, the
 paired ratio) and the brax SAC timing harness."""
 
+import functools
+
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -24,9 +26,18 @@ def test_update_flops_paper_size_matches_the_issue_count():
     assert sac_update.update_flops((512,) * 3, 512, 2) / 1e9 == pytest.approx(6.77, abs=0.01)
 
 
+@functools.cache
+def small_update_xla_flops(layer_norm: bool = False) -> float:
+    """XLA's FLOP count of the compiled small-size update (actor every update), compiled
+    once per `layer_norm` for the tests below."""
+    return sac_update.jax_update_rate(
+        "small", 1, n_updates=1, time_it=False, layer_norm=layer_norm
+    )[1]
+
+
 def test_update_flops_agree_with_xla_cost_analysis():
     """XLA's count of the compiled update (matmuls + elementwise) is within 3% above ours."""
-    _, xla = sac_update.jax_update_rate("small", 1, n_updates=1, time_it=False)
+    xla = small_update_xla_flops()
     ours = sac_update.update_flops(*sac_update.SIZES["small"], 1)
     assert 1.0 <= xla / ours < 1.03, (xla, ours)
 
@@ -36,8 +47,7 @@ def test_critic_layer_norm_adds_little_arithmetic_to_the_update():
     backward), where a unit's matmul costs 2 x fan-in FLOPs: XLA counts more FLOPs with it,
     but under 10% more at the small size (its cost on a CPU is memory traffic, measured by
     `python -m benchmarks.sac_update --layer-norm-cost`)."""
-    _, plain = sac_update.jax_update_rate("small", 1, n_updates=1, time_it=False)
-    _, with_ln = sac_update.jax_update_rate("small", 1, n_updates=1, time_it=False, layer_norm=True)
+    plain, with_ln = small_update_xla_flops(), small_update_xla_flops(layer_norm=True)
     assert 1.0 < with_ln / plain < 1.1, (plain, with_ln)
 
 
