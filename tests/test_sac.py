@@ -163,8 +163,9 @@ def test_probe_two_steps_with_critic_layer_norm():
     On the plain probe the LayerNorm critic misses Q(s0, a = 0) by 0.1 (0.70): there the
     network's input is all zeros, the first layer's pre-activation is its bias alone, and
     LayerNorm, which is invariant to the scale of its input, jumps between that and the
-    direction of W x for small x. Real features are never all zero, so the probe is run
-    with its features shifted off the origin."""
+    direction of W x for small x. The envs' features are all zero rarely or never (cos θ on
+    the mazes, a unit quaternion on the Ant), so the probe is run with its features
+    shifted off the origin."""
     cfg = dataclasses.replace(PROBE_CFG, critic_layer_norm=True)
     q, _ = probe(Probe(first=0.5, c=1.0, k=0.0, a_star=0.0), cfg, OFF_ORIGIN_PROBE_ENV)
     np.testing.assert_allclose(q[:, 1], 1.0, atol=0.05)
