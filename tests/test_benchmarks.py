@@ -51,6 +51,25 @@ def test_critic_layer_norm_adds_little_arithmetic_to_the_update():
     assert 1.0 < with_ln / plain < 1.1, (plain, with_ln)
 
 
+def test_critic_probe_floor_still_share_and_time_order_by_hand():
+    from benchmarks import critic_probe
+
+    # Q = gamma (Q + alpha H*): 0.99 * 0.01 * -8 / 0.01 = -7.92.
+    assert critic_probe.soft_return_floor(0.01, -8.0, 0.99) == pytest.approx(-7.92)
+    assert critic_probe.soft_return_floor(0.0, -8.0, 0.99) == 0.0
+    # Three episodes of 2 steps in 2-d goal space, radius 1: one that stays within 0.9
+    # of its start, one that reaches 1.0 away (not still), one that goes and comes back.
+    ag = np.array([
+        [[0.0, 0.0], [0.5, 0.0], [0.0, 0.9]],
+        [[1.0, 1.0], [1.0, 2.0], [1.0, 1.5]],
+        [[5.0, 5.0], [8.0, 5.0], [5.0, 5.0]],
+    ])  # fmt: skip
+    np.testing.assert_array_equal(critic_probe.still_share(ag, 1.0), [True, False, False])
+    # A ring of 5 slots, 3 stored, next write at slot 1: slots 3, 4, 0 oldest first.
+    np.testing.assert_array_equal(critic_probe.time_order(1, 3, 5), [3, 4, 0])
+    np.testing.assert_array_equal(critic_probe.time_order(3, 3, 5), [0, 1, 2])
+
+
 def test_write_section_replaces_in_place(tmp_path):
     path = tmp_path / "RESULTS.md"
     results.write_section("A", "one", path)

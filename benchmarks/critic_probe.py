@@ -1,0 +1,125 @@
+"""Is a trained run's critic inside SPEC §4's sanity bound where the agent has not been?
+
+    python -m benchmarks.critic_probe RUN_DIR [--step N] [--episodes 200] [--seed-index 0]
+
+`sac/q_mean` averages the critic over replayed batches, most of whose goals the agent
+reaches, so a critic that is far below the return's range on the goals it has not reached
+keeps a healthy mean. This probe reads the run's checkpoint and prints:
+
+- the floor of the soft return: with rewards >= 0 and the entropy at its target H*, a soft
+  Q-value is at least gamma * alpha * H* / (1 - gamma) (Eq. 3 with r = 0 forever);
+- V(s_0, g) = min_i Q_i(s_0, pi(s_0, g), g) at each desired outcome g, over the stored
+  episodes' start states;
+- over the stored (s_t, g_t) pairs of the newest `episodes` episodes: V's mean, 1st
+  percentile and the share below the floor;
+- the share of episodes whose achieved goal never leaves the success radius around
+  phi(s_0) (an ant that stays at the start, a peg never pushed), in the buffer's time order.
+
+A critic below the floor is pessimistic beyond what any behaviour can earn: the actor
+then avoids whatever leads toward the goals it has not reached (benchmarks/RESULTS.md,
+"The critic below the return's floor").
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from d2c_jax.core import sac
+from d2c_jax.training import agent as agent_lib
+from d2c_jax.training import runs
+
+BLOCKS = 8
+"""Blocks of the buffer, oldest to newest, for the still share."""
+
+
+def soft_return_floor(alpha: float, target_entropy: float, gamma: float) -> float:
+    """The soft return of a policy that earns no reward and keeps its entropy at
+    `target_entropy` for ever: Q = gamma (Q + alpha H*), so Q = gamma alpha H* / (1 - gamma)."""
+    return gamma * alpha * target_entropy / (1.0 - gamma)
+
+
+def still_share(achieved_goal: np.ndarray, radius: float) -> np.ndarray:
+    """(E,) bool: the achieved goal stays within `radius` of phi(s_0) for the whole episode.
+
+    Args:
+      achieved_goal: (E, H + 1, goal_dim) phi(s_t) of E episodes.
+    """
+    moved = np.linalg.norm(achieved_goal - achieved_goal[:, :1], axis=-1).max(axis=1)
+    return moved < radius
+
+
+def time_order(ptr: int, size: int, n_slots: int) -> np.ndarray:
+    """(size,) slot indices of the stored episodes, oldest first (a ring written at ptr)."""
+    return (ptr - size + np.arange(size)) % n_slots
+
+
+def report(cfg, env, ts, episodes: int) -> list[str]:
+    """The probe's lines for one run's TrainState `ts` (no run axis)."""
+    agent = agent_lib.Agent(cfg, env)
+    value = jax.jit(lambda o, g: sac.state_value(agent.sac_nets, ts.sac, env, o, g))
+    rp = jax.tree.map(np.asarray, ts.replay)
+    order = time_order(int(rp.ptr), int(rp.size), rp.obs.shape[0])
+    newest = order[-episodes:]
+    alpha = float(jnp.exp(ts.sac.log_alpha))
+    floor = soft_return_floor(alpha, sac.target_entropy(cfg.sac, env.action_dim), cfg.sac.gamma)
+    lines = [
+        f"alpha {alpha:.4f}; floor of the soft return {floor:.1f}, its ceiling about "
+        f"{1.0 / (1.0 - cfg.sac.gamma):.0f}"
+    ]
+    starts = rp.obs[newest, 0]
+    for k, point in enumerate(np.asarray(env.goal_points, np.float32)):
+        v = np.asarray(value(starts, np.broadcast_to(point, (len(newest), point.shape[0]))))
+        lines.append(f"V(s_0, mode {k}): mean {v.mean():.1f}, min {v.min():.1f}, max {v.max():.1f}")
+    obs = rp.obs[newest, :-1].reshape(-1, rp.obs.shape[-1])
+    goals = rp.goal[newest].reshape(-1, rp.goal.shape[-1])
+    v = np.asarray(value(obs, goals))
+    lines.append(
+        f"V(s_t, g_t) over the newest {len(newest)} episodes: mean {v.mean():.1f}, "
+        f"1st percentile {np.percentile(v, 1):.1f}, below the floor {np.mean(v < floor):.2f}"
+    )
+    still = still_share(rp.achieved_goal[order], env.success_radius)
+    horizon = rp.action.shape[1]
+    step_now = int(ts.env_steps)
+    shares = []
+    for block in np.array_split(np.arange(len(order)), BLOCKS):
+        if len(block):
+            at = step_now - (len(order) - block[-1] - 1) * horizon
+            shares.append(f"{at / 1e3:.0f}k {still[block].mean():.2f}")
+    lines.append(
+        "episodes whose phi never leaves the success radius, by buffer block "
+        "(env steps at its end): " + ", ".join(shares)
+    )
+    return lines
+
+
+def main(argv=None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("run")
+    parser.add_argument("--step", type=int, default=None, help="checkpoint iteration")
+    parser.add_argument("--episodes", type=int, default=200)
+    parser.add_argument("--seed-index", type=int, default=0)
+    args = parser.parse_args(argv)
+    try:
+        if args.episodes < 1:
+            raise runs.RunError(f"--episodes must be >= 1, got {args.episodes}", 2)
+        cfg, env, ts = runs.load_run(args.run, args.step)
+        n_runs = len(ts.env_steps)
+        if not 0 <= args.seed_index < n_runs:
+            raise runs.RunError(f"--seed-index must be in [0, {n_runs}), got {args.seed_index}", 2)
+    except runs.RunError as err:
+        print(f"error: {err}", file=sys.stderr)
+        return 2
+    ts = jax.tree.map(lambda x: x[args.seed_index], ts)
+    print(f"{args.run}: {int(ts.env_steps):,} env steps")
+    for line in report(cfg, env, ts, args.episodes):
+        print(line)
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
