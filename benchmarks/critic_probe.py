@@ -37,12 +37,6 @@ BLOCKS = 8
 """Blocks of the buffer, oldest to newest, for the still share."""
 
 
-def soft_return_floor(alpha: float, target_entropy: float, gamma: float) -> float:
-    """The soft return of a policy that earns no reward and keeps its entropy at
-    `target_entropy` for ever: Q = gamma (Q + alpha H*), so Q = gamma alpha H* / (1 - gamma)."""
-    return gamma * alpha * target_entropy / (1.0 - gamma)
-
-
 def still_share(achieved_goal: np.ndarray, radius: float) -> np.ndarray:
     """(E,) bool: the achieved goal stays within `radius` of phi(s_0) for the whole episode.
 
@@ -66,7 +60,7 @@ def report(cfg, env, ts, episodes: int) -> list[str]:
     order = time_order(int(rp.ptr), int(rp.size), rp.obs.shape[0])
     newest = order[-episodes:]
     alpha = float(jnp.exp(ts.sac.log_alpha))
-    floor = soft_return_floor(alpha, sac.target_entropy(cfg.sac, env.action_dim), cfg.sac.gamma)
+    floor = sac.soft_return_floor(alpha, sac.target_entropy(cfg.sac, env.action_dim), cfg.sac.gamma)
     lines = [
         f"alpha {alpha:.4f}; floor of the soft return {floor:.1f}, its ceiling about "
         f"{1.0 / (1.0 - cfg.sac.gamma):.0f}"

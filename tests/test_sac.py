@@ -388,3 +388,30 @@ def test_clipped_targets_stay_in_the_return_range(small):
         )(inflated, batches, jax.random.key(3))
         target = float(metrics["sac/target_mean"])
         assert (0.0 <= target <= bound * (1 + 1e-6)) if clip else abs(target) > bound, target
+
+
+def test_soft_return_floor_by_hand_and_the_share_of_targets_below_it(small):
+    """soft_return_floor by hand, and "sac/target_below_floor": a target critic whose
+    output layer is the constant b gives targets r + gamma (b - alpha log pi), all below
+    the floor for b = -1000 and none for b = 50, read before `clip_target` lifts them."""
+    # Q = gamma (Q + alpha H*): 0.99 * 0.01 * -8 / 0.01 = -7.92; alpha 0 gives 0.
+    np.testing.assert_allclose(sac.soft_return_floor(0.01, -8.0, 0.99), -7.92, rtol=1e-6)
+    assert sac.soft_return_floor(0.0, -8.0, 0.99) == 0.0
+    batches = stack(*small.batches[:2])
+
+    def constant_target(b):
+        params = small.state.target_critic_params
+        out = params["params"]["members"]["MLP_0"]["Dense_2"]
+        out = {"bias": jnp.full_like(out["bias"], b), "kernel": jnp.zeros_like(out["kernel"])}
+        mlp = {**params["params"]["members"]["MLP_0"], "Dense_2": out}
+        return small.state.replace(target_critic_params={"params": {"members": {"MLP_0": mlp}}})
+
+    for b, share in ((-1000.0, 1.0), (50.0, 0.0)):
+        for clip in (False, True):
+            cfg = dataclasses.replace(CFG, clip_target=clip)
+            _, metrics = jax.jit(
+                lambda s, bt, k, cfg=cfg: sac.update_sac_block(
+                    cfg, small.nets, small.opt, small.hp, s, bt, small.env, k
+                )
+            )(constant_target(b), batches, jax.random.key(4))
+            assert float(metrics["sac/target_below_floor"]) == share, (b, clip, metrics)

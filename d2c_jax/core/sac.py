@@ -139,6 +139,14 @@ def soft_td_target(
     return jax.lax.stop_gradient(reward + gamma * mask * v_next), next_log_prob
 
 
+def soft_return_floor(alpha, target_entropy: float, gamma: float):
+    """The soft return of a policy that earns no reward and keeps its entropy at
+    `target_entropy` H* for ever: Q = gamma (Q + alpha H*) (Eq. 3 with r = 0), so
+    Q = gamma alpha H* / (1 - gamma). With rewards in [0, 1] no soft Q-value of a policy at
+    its entropy target lies below it."""
+    return gamma * alpha * target_entropy / (1.0 - gamma)
+
+
 def clip_to_return_range(y: jax.Array, gamma: float) -> jax.Array:
     """y clipped to [0, 1 / (1 - gamma)], the discounted return's range for rewards in
     [0, 1] (p_pseudo and the sparse ablation): a critic that overshoots it (measured on
@@ -196,6 +204,10 @@ def _critic_step(cfg: SACConfig, nets, opt, hp, state: SACState, feats, next_fea
         nets, state.actor_params, state.target_critic_params, alpha, next_feats,
         batch.reward, batch.mask, cfg.gamma, key,
     )  # fmt: skip
+    # Share of targets below what any behaviour can earn (SPEC §4's sanity bound); read
+    # before the clip, so with `clip_target` it is the share the clip lifts.
+    floor = soft_return_floor(alpha, target_entropy(cfg, batch.action.shape[-1]), cfg.gamma)
+    below_floor = jnp.mean(y < floor)
     if cfg.clip_target:
         y = clip_to_return_range(y, cfg.gamma)
     grad_fn = jax.value_and_grad(critic_loss, has_aux=True)
@@ -207,6 +219,7 @@ def _critic_step(cfg: SACConfig, nets, opt, hp, state: SACState, feats, next_fea
         "sac/critic_loss": loss,
         "sac/q_mean": jnp.mean(q),
         "sac/target_mean": jnp.mean(y),
+        "sac/target_below_floor": below_floor,
         "sac/entropy": -jnp.mean(next_log_prob),
         "sac/reward_mean": jnp.mean(batch.reward),
     }
