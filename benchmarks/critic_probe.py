@@ -101,14 +101,10 @@ def main(argv=None) -> int:
     try:
         if args.episodes < 1:
             raise runs.RunError(f"--episodes must be >= 1, got {args.episodes}", 2)
-        cfg, env, ts = runs.load_run(args.run, args.step)
-        n_runs = len(ts.env_steps)
-        if not 0 <= args.seed_index < n_runs:
-            raise runs.RunError(f"--seed-index must be in [0, {n_runs}), got {args.seed_index}", 2)
+        cfg, env, ts = runs.load_one_run(args.run, args.seed_index, args.step)
     except runs.RunError as err:
         print(f"error: {err}", file=sys.stderr)
         return 2
-    ts = jax.tree.map(lambda x: x[args.seed_index], ts)
     print(f"{args.run}: {int(ts.env_steps):,} env steps")
     for line in report(cfg, env, ts, args.episodes):
         print(line)

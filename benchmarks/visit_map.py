@@ -166,28 +166,25 @@ def main(argv=None) -> int:
     try:
         if args.reach < 0:
             raise runs.RunError(f"--reach must be >= 0 episodes per cell, got {args.reach}", 2)
-        cfg, env, ts = runs.load_run(args.run)
-        n_runs = len(ts.env_steps)
-        if not 0 <= args.seed_index < n_runs:
-            raise runs.RunError(f"--seed-index must be in [0, {n_runs}), got {args.seed_index}", 2)
+        cfg, env, ts = runs.load_one_run(args.run, args.seed_index)
     except runs.RunError as err:
         print(f"error: {err}", file=sys.stderr)
         return 2
     grid = env_grid(env)
     layout = grid.layout
-    rp = jax.tree.map(lambda x: np.asarray(x[args.seed_index]), ts.replay)
+    rp = jax.tree.map(np.asarray, ts.replay)
     ag = rp.achieved_goal[: int(rp.size)]  # (episodes, H + 1, goal_dim)
     phase = np.arange(ag.shape[1])[None] <= rp.walk_start[: int(rp.size), None]
     every = grid_counts(grid, ag.reshape(-1, ag.shape[-1]))
     curriculum_phase = grid_counts(grid, ag[phase])
     net = classifier.make_classifier(cfg.classifier, env)
-    params = jax.tree.map(lambda x: x[args.seed_index], ts.classifier.params)
+    params = ts.classifier.params
     goal_points = np.asarray(env.goal_points)
     p = classifier.p_pseudo(net, params, grid.centres[:, None], goal_points[None])
     scores = np.asarray(p).max(axis=-1).reshape(len(layout), len(layout[0]))
     mode_rows, mode_cols = grid.cell_of(goal_points[:, :2].astype(np.float64))
     modes = list(zip(mode_rows.tolist(), mode_cols.tolist(), strict=True))
-    print(f"{args.run}: {ag.shape[0]} episodes, {int(ts.env_steps[args.seed_index]):,} env steps")
+    print(f"{args.run}: {ag.shape[0]} episodes, {int(ts.env_steps):,} env steps")
     print("visits (log10)   curriculum phase   10 x p_pseudo")
     maps = zip(
         draw_counts(layout, every),
@@ -208,8 +205,7 @@ def main(argv=None) -> int:
     if args.reach:
         from d2c_jax.training import agent as agent_lib
 
-        sac_state = jax.tree.map(lambda x: x[args.seed_index], ts.sac)
-        policy = agent_lib.Agent(cfg, env).policy(sac_state, deterministic=True)
+        policy = agent_lib.Agent(cfg, env).policy(ts.sac, deterministic=True)
         rates = reach_rates(env, policy, grid, args.reach, jax.random.key(args.seed_index))
         print(f"10 x reach rate ({args.reach} deterministic episodes per cell)   visits (log10)")
         for a, b in zip(draw_reach(rates), draw_counts(layout, every), strict=True):

@@ -18,13 +18,14 @@ import shutil
 import subprocess
 import sys
 
+import chex
 import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
 
 from d2c_jax.core import rollout
-from d2c_jax.training import cli, evaluation, loop
+from d2c_jax.training import cli, evaluation, loop, runs
 from d2c_jax.training import logging as logging_lib
 
 SEEDS = 2
@@ -162,3 +163,23 @@ def test_command_refuses_a_missing_checkpoint_in_one_line(probe_run):
     assert out.stderr.splitlines() == [
         f"error: {path} has no checkpoint of iteration 3; it has iterations 1, 2"
     ]
+
+
+def test_one_run_of_a_directory_and_the_critic_probe_on_it(probe_run, capsys):
+    """`runs.load_one_run` is run `seed_index` of `load_run` without the run axis, and
+    refuses an index outside the runs; the critic probe reads a run through it."""
+    from benchmarks import critic_probe
+
+    path, _ = probe_run
+    _, _, both = runs.load_run(path)
+    _, _, second = runs.load_one_run(path, 1)
+    chex.assert_trees_all_equal(second, jax.tree.map(lambda x: x[1], both))
+    with pytest.raises(runs.RunError, match=r"--seed-index must be in \[0, 2\), got 2"):
+        runs.load_one_run(path, 2)
+    assert critic_probe.main([str(path), "--seed-index", "1", "--episodes", "4"]) == 0
+    out = capsys.readouterr().out.splitlines()
+    assert out[0] == f"{path}: {int(both.env_steps[1]):,} env steps"
+    assert sum(line.startswith("V(s_0, mode ") for line in out) == 4  # medium_maze's modes
+    assert critic_probe.main([str(path), "--seed-index", "2"]) == 2
+    (line,) = capsys.readouterr().err.splitlines()
+    assert line == "error: --seed-index must be in [0, 2), got 2"

@@ -248,6 +248,21 @@ def load_run(run_dir, step: int | None = None):
     return cfg, env, restore_runs(agent_lib.Agent(cfg, env), run_dir, step)[1]
 
 
+def load_one_run(run_dir, seed_index: int, step: int | None = None):
+    """(cfg, env, ts) of run `seed_index` of a run directory (`load_run`), ts without the
+    run axis.
+
+    Raises:
+      RunError(2): as `load_run`, or `seed_index` outside the directory's runs (jax
+        indexing would clamp it to a wrong run).
+    """
+    cfg, env, ts = load_run(run_dir, step)
+    n_runs = len(ts.env_steps)
+    if not 0 <= seed_index < n_runs:
+        raise RunError(f"--seed-index must be in [0, {n_runs}), got {seed_index}", 2)
+    return cfg, env, jax.tree.map(lambda x: x[seed_index], ts)
+
+
 def checkpoint_steps(run_dir, n_runs: int) -> list[int]:
     """The iterations, oldest first, with a checkpoint of every process that wrote the
     checkpoints of `run_dir` (a run of `n_runs` runs); the checkpointer keeps the last 3."""
