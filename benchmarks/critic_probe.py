@@ -2,22 +2,23 @@
 
     python -m benchmarks.critic_probe RUN_DIR [--step N] [--episodes 200] [--seed-index 0]
 
-`sac/q_mean` averages the critic over replayed batches, most of whose goals the agent
-reaches, so a critic that is far below the return's range on the goals it has not reached
-keeps a healthy mean. This probe reads the run's checkpoint and prints:
+`sac/q_mean` averages the critic over replayed batches, whose goals are mostly relabelled
+ones the agent reached (HER), so a critic far below the return's range on the goals it has
+not reached keeps a healthy mean. This probe reads the run's checkpoint and prints:
 
 - the floor of the soft return: with rewards >= 0 and the entropy at its target H*, a soft
   Q-value is at least gamma * alpha * H* / (1 - gamma) (Eq. 3 with r = 0 forever);
-- V(s_0, g) = min_i Q_i(s_0, pi(s_0, g), g) at each desired outcome g, over the stored
-  episodes' start states;
+- V(s_0, g) = min_i Q_i(s_0, pi(s_0, g), g) at each desired outcome g, over the start
+  states of the newest `episodes` episodes;
 - over the stored (s_t, g_t) pairs of the newest `episodes` episodes: V's mean, 1st
   percentile and the share below the floor;
 - the share of episodes whose achieved goal never leaves the success radius around
   phi(s_0) (an ant that stays at the start, a peg never pushed), in the buffer's time order.
 
-A critic below the floor is pessimistic beyond what any behaviour can earn: the actor
-then avoids whatever leads toward the goals it has not reached (benchmarks/RESULTS.md,
-"The critic below the return's floor").
+A critic below the floor is pessimistic beyond what any behaviour can earn (SPEC §4's
+sanity bound), which `sac/q_mean` hides; measured on the Ant and Sawyer runs and not on
+`medium_maze` (benchmarks/RESULTS.md, "Why the ant stays at the start, and the critic
+below the return's floor").
 """
 
 from __future__ import annotations
