@@ -30,7 +30,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from d2c_jax.core import sac
+from d2c_jax.core import replay, sac
 from d2c_jax.training import agent as agent_lib
 from d2c_jax.training import runs
 
@@ -48,17 +48,13 @@ def still_share(achieved_goal: np.ndarray, radius: float) -> np.ndarray:
     return moved < radius
 
 
-def time_order(ptr: int, size: int, n_slots: int) -> np.ndarray:
-    """(size,) slot indices of the stored episodes, oldest first (a ring written at ptr)."""
-    return (ptr - size + np.arange(size)) % n_slots
-
-
 def report(cfg, env, ts, episodes: int) -> list[str]:
     """The probe's lines for one run's TrainState `ts` (no run axis)."""
     agent = agent_lib.Agent(cfg, env)
     value = jax.jit(lambda o, g: sac.state_value(agent.sac_nets, ts.sac, env, o, g))
     rp = jax.tree.map(np.asarray, ts.replay)
-    order = time_order(int(rp.ptr), int(rp.size), rp.obs.shape[0])
+    newest_first, _ = replay.recent_episode_slots(ts.replay, int(rp.size))
+    order = np.asarray(newest_first)[::-1]  # the stored episodes, oldest first
     newest = order[-episodes:]
     alpha = float(jnp.exp(ts.sac.log_alpha))
     floor = sac.soft_return_floor(alpha, sac.target_entropy(cfg.sac, env.action_dim), cfg.sac.gamma)

@@ -57,11 +57,10 @@ def main(argv=None) -> int:
     parser.add_argument("--seed-index", type=int, default=0)
     args = parser.parse_args(argv)
     try:
-        cfg, env, ts = runs.load_run(args.run_dir)
+        cfg, env, ts = runs.load_one_run(args.run_dir, args.seed_index)
     except runs.RunError as err:
         print(f"error: {err}", file=sys.stderr)
         return 2
-    ts = jax.tree.map(lambda x: x[args.seed_index], ts)
     print("\n".join(probe(cfg, env, ts, args.points, jax.random.key(0))))
     return 0
 

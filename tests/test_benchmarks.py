@@ -51,7 +51,7 @@ def test_critic_layer_norm_adds_little_arithmetic_to_the_update():
     assert 1.0 < with_ln / plain < 1.1, (plain, with_ln)
 
 
-def test_critic_probe_still_share_and_time_order_by_hand():
+def test_critic_probe_still_share_by_hand():
     from benchmarks import critic_probe
 
     # Three episodes of 2 steps in 2-d goal space, radius 1: one that stays within 0.9
@@ -62,9 +62,6 @@ def test_critic_probe_still_share_and_time_order_by_hand():
         [[5.0, 5.0], [8.0, 5.0], [5.0, 5.0]],
     ])  # fmt: skip
     np.testing.assert_array_equal(critic_probe.still_share(ag, 1.0), [True, False, False])
-    # A ring of 5 slots, 3 stored, next write at slot 1: slots 3, 4, 0 oldest first.
-    np.testing.assert_array_equal(critic_probe.time_order(1, 3, 5), [3, 4, 0])
-    np.testing.assert_array_equal(critic_probe.time_order(3, 3, 5), [0, 1, 2])
 
 
 def test_write_section_replaces_in_place(tmp_path):

@@ -167,8 +167,8 @@ def test_command_refuses_a_missing_checkpoint_in_one_line(probe_run):
 
 def test_one_run_of_a_directory_and_the_critic_probe_on_it(probe_run, capsys):
     """`runs.load_one_run` is run `seed_index` of `load_run` without the run axis, and
-    refuses an index outside the runs; the critic probe reads a run through it."""
-    from benchmarks import critic_probe
+    refuses an index outside the runs; the critic and reward probes read a run through it."""
+    from benchmarks import critic_probe, reward_probe
 
     path, _ = probe_run
     _, _, both = runs.load_run(path)
@@ -180,6 +180,7 @@ def test_one_run_of_a_directory_and_the_critic_probe_on_it(probe_run, capsys):
     out = capsys.readouterr().out.splitlines()
     assert out[0] == f"{path}: {int(both.env_steps[1]):,} env steps"
     assert sum(line.startswith("V(s_0, mode ") for line in out) == 4  # medium_maze's modes
-    assert critic_probe.main([str(path), "--seed-index", "2"]) == 2
-    (line,) = capsys.readouterr().err.splitlines()
-    assert line == "error: --seed-index must be in [0, 2), got 2"
+    for probe_main in (critic_probe.main, reward_probe.main):  # jax would clamp index 2
+        assert probe_main([str(path), "--seed-index", "2"]) == 2
+        (line,) = capsys.readouterr().err.splitlines()
+        assert line == "error: --seed-index must be in [0, 2), got 2"
