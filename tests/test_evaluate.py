@@ -174,7 +174,7 @@ def test_one_run_of_a_directory_and_the_critic_probe_on_it(probe_run, capsys):
     _, _, both = runs.load_run(path)
     _, _, second = runs.load_one_run(path, 1)
     chex.assert_trees_all_equal(second, jax.tree.map(lambda x: x[1], both))
-    with pytest.raises(runs.RunError, match=r"--seed-index must be in \[0, 2\), got 2"):
+    with pytest.raises(runs.RunError, match=r"--seed-index must be in \[0, 2\) for .*, got 2"):
         runs.load_one_run(path, 2)
     assert critic_probe.main([str(path), "--seed-index", "1", "--episodes", "4"]) == 0
     out = capsys.readouterr().out.splitlines()
@@ -183,4 +183,4 @@ def test_one_run_of_a_directory_and_the_critic_probe_on_it(probe_run, capsys):
     for probe_main in (critic_probe.main, reward_probe.main):  # jax would clamp index 2
         assert probe_main([str(path), "--seed-index", "2"]) == 2
         (line,) = capsys.readouterr().err.splitlines()
-        assert line == "error: --seed-index must be in [0, 2), got 2"
+        assert line == f"error: --seed-index must be in [0, 2) for {path}, got 2"

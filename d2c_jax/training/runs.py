@@ -257,10 +257,15 @@ def load_one_run(run_dir, seed_index: int, step: int | None = None):
         indexing would clamp it to a wrong run).
     """
     cfg, env, ts = load_run(run_dir, step)
-    n_runs = len(ts.env_steps)
-    if not 0 <= seed_index < n_runs:
-        raise RunError(f"--seed-index must be in [0, {n_runs}), got {seed_index}", 2)
+    check_seed_index(seed_index, len(ts.env_steps), run_dir)
     return cfg, env, jax.tree.map(lambda x: x[seed_index], ts)
+
+
+def check_seed_index(seed_index: int, n_runs: int, run_dir) -> None:
+    """Raises RunError(2) unless run `seed_index` exists among the `n_runs` runs of
+    `run_dir`: jax indexing would clamp an index past them to the last run, silently."""
+    if not 0 <= seed_index < n_runs:
+        raise RunError(f"--seed-index must be in [0, {n_runs}) for {run_dir}, got {seed_index}", 2)
 
 
 def checkpoint_steps(run_dir, n_runs: int) -> list[int]:
@@ -363,11 +368,7 @@ def render_policy(
     Returns the path of the video (default RUN_DIR/policy.gif).
     """
     cfg, env, ts = load_run(run_dir)
-    n_runs = ts.iteration.shape[0]
-    if not 0 <= seed_index < n_runs:  # jax indexing would clamp it to a wrong run
-        raise RunError(
-            f"--seed-index must be in [0, {n_runs - 1}] for {run_dir}, got {seed_index}", 2
-        )
+    check_seed_index(seed_index, ts.iteration.shape[0], run_dir)
     policy = trained_policy(cfg, env, ts, seed_index)
     # One episode per mode from the episode loop (the modes as an argument, not constants).
     episodes = jax.jit(lambda goals, k: rollout.trajectories(env, policy, goals, k))
