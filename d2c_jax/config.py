@@ -116,6 +116,9 @@ class HERConfig:
 
     relabel_prob: float = 0.8
     """Probability that a sampled transition's goal is replaced by a future achieved goal."""
+    min_future_radii: float = 0.0
+    """A future goal within this many success radii of phi(s_t), an outcome already reached
+    at s_t, is not used: the transition keeps its own goal. 0: every one is (SPEC §4)."""
 
 
 @dataclasses.dataclass(frozen=True)

@@ -93,6 +93,20 @@ def test_relabel_probability_extremes(prob, expected):
     assert float(np.mean(np.asarray(b.goal[:, 0] != STORED_GOAL))) == expected
 
 
+def test_future_goals_already_reached_at_s_t_are_not_used():
+    """min_distance 2.5 on episodes whose phi moves 1 per step: a future goal t' - t < 3
+    steps ahead is within 2.5 of phi(s_t), so the transition keeps its stored goal. With t'
+    uniform in [t + 1, H] (H = 5) the share still relabelled is, by hand, 3/5 at t = 0, 2/4
+    at t = 1, 1/3 at t = 2 and 0 at t = 3, 4."""
+    tr = her.sample_relabelled(1.0, buffer_with([1, 2]), 40_000, jax.random.key(2), 0.0, 2.5)
+    relabelled = np.asarray(tr.goal[:, 0] != STORED_GOAL)
+    t = np.asarray(tr.obs[:, 0]) % 100
+    ahead = np.asarray(tr.goal[:, 0]) % 100 - t
+    assert np.all(ahead[relabelled] >= 3)
+    for step, share in enumerate([3 / 5, 2 / 4, 1 / 3, 0.0, 0.0]):
+        np.testing.assert_allclose(np.mean(relabelled[t == step]), share, atol=0.02)
+
+
 class RadiusEnv:
     success_radius = 0.5
 

@@ -456,13 +456,16 @@ def test_over_runs_equals_vmap_with_and_without_a_size_one_axis():
         jax.tree.map(lambda g, w: np.testing.assert_allclose(g, w, rtol=1e-6), got, want)
 
 
-@pytest.mark.parametrize("cadence", [2, 1])
-def test_sac_blocks_drawn_ahead_equal_a_block_by_block_loop(medium_maze, monkeypatch, cadence):
+@pytest.mark.parametrize("cadence, min_future_radii", [(2, 0.0), (1, 0.0), (2, 4.0)])
+def test_sac_blocks_drawn_ahead_equal_a_block_by_block_loop(
+    medium_maze, monkeypatch, cadence, min_future_radii
+):
     """`Agent.sac_blocks` draws HER transitions a chunk at a time (here 3 blocks, so 7
     blocks are 2 chunks and a remainder of 1): the SAC state equals that of a loop that
     draws each block's batches (`her.relabel`, D2C's intrinsic reward) from the i-th key,
     then updates. With the actor and target at every update (`cadence` 1: one-update
-    blocks) the loop is unrolled to two blocks per iteration, 3 = one pair and one more."""
+    blocks) the loop is unrolled to two blocks per iteration, 3 = one pair and one more.
+    `her.min_future_radii` reaches the draws as that many success radii."""
     import jax
 
     from d2c_jax.core import her, sac
@@ -470,13 +473,14 @@ def test_sac_blocks_drawn_ahead_equal_a_block_by_block_loop(medium_maze, monkeyp
     monkeypatch.setattr(agent_lib, "_SAMPLE_CHUNK", 3)
     cfg = config.preset("medium_maze", "tiny")
     sac_cfg = dataclasses.replace(cfg.sac, actor_update_every=cadence, target_update_every=cadence)
-    cfg = dataclasses.replace(cfg, sac=sac_cfg)
+    her_cfg = dataclasses.replace(cfg.her, min_future_radii=min_future_radii)
+    cfg = dataclasses.replace(cfg, sac=sac_cfg, her=her_cfg)
     assert sac.block_size(cfg.sac) == cadence
     agent = agent_lib.Agent(cfg, medium_maze)
     ts, _ = jax.jit(agent.step)(agent.init(jax.random.key(0)))  # a buffer of random episodes
     n, key = 7, jax.random.key(1)
 
-    def block_by_block(ts):
+    def block_by_block(ts, min_distance=min_future_radii * medium_maze.success_radius):
         reward_fn = agent.reward_fn(ts)
         hp, block = ts.hparams, sac.block_size(cfg.sac)
 
@@ -484,7 +488,12 @@ def test_sac_blocks_drawn_ahead_equal_a_block_by_block_loop(medium_maze, monkeyp
             k_draw, k_update = jax.random.split(k)
             batches = jax.vmap(
                 lambda kb: her.relabel(
-                    hp.relabel_prob, ts.replay, cfg.sac.batch_size, reward_fn, kb
+                    hp.relabel_prob,
+                    ts.replay,
+                    cfg.sac.batch_size,
+                    reward_fn,
+                    kb,
+                    min_distance=min_distance,
                 )
             )(jax.random.split(k_draw, block))
             return sac.update_sac_block(
@@ -501,6 +510,10 @@ def test_sac_blocks_drawn_ahead_equal_a_block_by_block_loop(medium_maze, monkeyp
     assert float(abs(moved).max()) > 1e-4  # the updates changed the critic
     for a, b in zip(jax.tree.leaves(drawn_ahead), jax.tree.leaves(reference), strict=True):
         np.testing.assert_allclose(np.asarray(a), np.asarray(b), rtol=0, atol=1e-6)
+    if min_future_radii > 0:  # the filter acted: every future goal used gives other updates
+        every_future = jax.jit(lambda ts: block_by_block(ts, 0.0))(ts)
+        leaf = lambda s: np.asarray(jax.tree.leaves(s.critic_params)[0])  # noqa: E731
+        assert np.abs(leaf(every_future) - leaf(drawn_ahead)).max() > 1e-4
 
 
 def test_a_signal_while_an_iteration_computes_stops_at_its_end(tmp_path, monkeypatch):

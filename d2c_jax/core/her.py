@@ -59,6 +59,7 @@ def sample_relabelled(
     batch_size: int,
     key: jax.Array,
     walk_fraction: float = 0.0,
+    min_distance: float = 0.0,
 ) -> RelabelledTransitions:
     """Samples `batch_size` transitions and relabels their goals ("future" strategy).
 
@@ -69,6 +70,9 @@ def sample_relabelled(
       batch_size: B.
       key: PRNG key.
       walk_fraction: share of the batch from random-walk transitions (`replay.sample`).
+      min_distance: a future goal within this distance of phi(s_t) is not used (the
+        transition keeps its own goal): where the agent barely moves, such goals, reached
+        before acting, are most of HER's (HERConfig.min_future_radii). 0: all are used.
     Returns:
       RelabelledTransitions with leading axis B.
     """
@@ -76,6 +80,10 @@ def sample_relabelled(
     tr = replay.sample(state, batch_size, key_sample, walk_fraction)
     future = future_goals(state, tr.episode, tr.step, key_future)
     use_future = jax.random.bernoulli(key_coin, relabel_prob, (batch_size,))
+    if min_distance > 0:  # static: the default program is unchanged
+        achieved_now = state.achieved_goal[tr.episode, tr.step]  # (B, goal_dim) phi(s_t)
+        moved = jnp.linalg.norm(future - achieved_now, axis=-1) > min_distance
+        use_future = use_future & moved
     goal = jnp.where(use_future[:, None], future, tr.goal)
     return RelabelledTransitions(tr.obs, tr.action, tr.next_obs, tr.next_achieved_goal, goal)
 
@@ -114,16 +122,18 @@ def relabel(
     key: jax.Array,
     walk_fraction: float = 0.0,
     terminal_fn: RewardFn | None = None,
+    min_distance: float = 0.0,
 ) -> Batch:
     """Samples `batch_size` transitions, relabels their goals and recomputes rewards
     (`sample_relabelled`, then `with_reward`).
 
     Args:
-      relabel_prob, state, batch_size, key, walk_fraction: as `sample_relabelled`.
+      relabel_prob, state, batch_size, key, walk_fraction, min_distance: as
+        `sample_relabelled`.
       reward_fn: reward_fn(ag_next, goal) -> reward, see `RewardFn`.
       terminal_fn: as `with_reward`; None: no terminals (SPEC §4).
     Returns:
       Batch with leading axis B.
     """
-    tr = sample_relabelled(relabel_prob, state, batch_size, key, walk_fraction)
+    tr = sample_relabelled(relabel_prob, state, batch_size, key, walk_fraction, min_distance)
     return with_reward(tr, reward_fn, terminal_fn)

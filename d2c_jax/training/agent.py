@@ -451,6 +451,7 @@ class Agent:
         reward_fn = self.reward_fn(ts)
         terminal_fn = self.terminal_fn()
         prob, walk = ts.hparams.relabel_prob, cfg.replay.walk_fraction
+        min_future = cfg.her.min_future_radii * self.env.success_radius
         keys = jax.random.split(key, n)
         size = min(n, _SAMPLE_CHUNK)
         unroll = -(-_MIN_UPDATES_PER_LOOP_ITERATION // sac.block_size(cfg.sac))
@@ -458,7 +459,9 @@ class Agent:
 
         def draw_block(key):  # -> leaves (block_size, B, ...)
             keys = jax.random.split(key, sac.block_size(cfg.sac))
-            draw = lambda k: her.sample_relabelled(prob, ts.replay, cfg.sac.batch_size, k, walk)  # noqa: E731
+            draw = lambda k: her.sample_relabelled(  # noqa: E731
+                prob, ts.replay, cfg.sac.batch_size, k, walk, min_future
+            )
             return jax.vmap(draw)(keys)
 
         def update_block(sac_state, drawn_and_key):

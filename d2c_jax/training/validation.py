@@ -208,6 +208,8 @@ _RANGE_EXCEPTIONS: dict[str, Range] = {
     "sac.log_std_max": Interval(),
     # Probabilities and fractions.
     "her.relabel_prob": Interval(0, 1),
+    # A distance in success radii.
+    "her.min_future_radii": Interval(0),
     "replay.walk_fraction": Interval(0, 1),
     "curriculum.post_success_threshold": Interval(0, 1),
     "curriculum.pool_tail_fraction": Interval(0, 1),
