@@ -13,7 +13,10 @@ not reached keeps a healthy mean. This probe reads the run's checkpoint and prin
 - over the stored (s_t, g_t) pairs of the newest `episodes` episodes: V's mean, 1st
   percentile and the share below the floor;
 - the share of episodes whose achieved goal never leaves the success radius around
-  phi(s_0) (an ant that stays at the start, a peg never pushed), in the buffer's time order.
+  phi(s_0) (an ant that stays at the start, a peg never pushed), in the buffer's time order;
+- the share of HER's "future" goals (t' uniform in [t + 1, H]) already within the success
+  radius of phi(s_t), over the whole buffer: goals reached before acting, which teach
+  nothing about reaching (`her.min_future_radii` leaves them out).
 
 A critic below the floor is pessimistic beyond what any behaviour can earn (SPEC §4's
 sanity bound), which `sac/q_mean` hides; measured on the Ant and Sawyer runs and not on
@@ -46,6 +49,24 @@ def still_share(achieved_goal: np.ndarray, radius: float) -> np.ndarray:
     """
     moved = np.linalg.norm(achieved_goal - achieved_goal[:, :1], axis=-1).max(axis=1)
     return moved < radius
+
+
+def already_reached_share(
+    achieved_goal: np.ndarray, radius: float, draws: int = 100_000, seed: int = 0
+) -> float:
+    """Share of HER "future" goals phi(s_t'), t uniform in [0, H) and t' in [t + 1, H] of a
+    uniformly drawn episode, within `radius` of phi(s_t) (a Monte-Carlo estimate).
+
+    Args:
+      achieved_goal: (E, H + 1, goal_dim) phi(s_t) of E episodes.
+    """
+    rng = np.random.default_rng(seed)
+    horizon = achieved_goal.shape[1] - 1
+    episode = rng.integers(0, achieved_goal.shape[0], draws)
+    step = rng.integers(0, horizon, draws)
+    future = rng.integers(step + 1, horizon + 1)
+    gap = achieved_goal[episode, future] - achieved_goal[episode, step]
+    return float(np.mean(np.linalg.norm(gap, axis=-1) <= radius))
 
 
 def report(cfg, env, ts, episodes: int) -> list[str]:
@@ -85,6 +106,8 @@ def report(cfg, env, ts, episodes: int) -> list[str]:
         "episodes whose phi never leaves the success radius, by buffer block "
         "(env steps at its end): " + ", ".join(shares)
     )
+    reached = already_reached_share(rp.achieved_goal[order], env.success_radius)
+    lines.append(f"HER future goals already within the success radius of phi(s_t): {reached:.2f}")
     return lines
 
 

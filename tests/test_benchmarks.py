@@ -64,6 +64,18 @@ def test_critic_probe_still_share_by_hand():
     np.testing.assert_array_equal(critic_probe.still_share(ag, 1.0), [True, False, False])
 
 
+def test_critic_probe_already_reached_share_by_hand():
+    """phi moves 1 per step over H = 5 steps, radius 2.5: the future goal t' is within the
+    radius iff t' - t <= 2, a share of 2/5, 2/4, 2/3, 1 and 1 at t = 0..4; mean 0.7133.
+    A still episode's future goals are all within it."""
+    from benchmarks import critic_probe
+
+    moving = np.stack([np.arange(6.0), np.zeros(6)], -1)[None]  # (1, H + 1, 2)
+    share = critic_probe.already_reached_share(moving, 2.5, draws=200_000)
+    np.testing.assert_allclose(share, (2 / 5 + 2 / 4 + 2 / 3 + 1 + 1) / 5, atol=0.005)
+    assert critic_probe.already_reached_share(np.zeros((3, 6, 2)), 0.1, draws=1000) == 1.0
+
+
 def test_write_section_replaces_in_place(tmp_path):
     path = tmp_path / "RESULTS.md"
     results.write_section("A", "one", path)
