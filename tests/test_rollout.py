@@ -107,6 +107,20 @@ def test_walk_start_hand_computed():
     np.testing.assert_array_equal(rollout.walk_start(success), [3, 5, 1])
 
 
+def test_stayed_at_start_hand_computed():
+    # Radius 1: episode 0 wanders to distance 0.6 and back; episode 1 reaches exactly 1.0
+    # (inside: the success test is <= radius too); episode 2 passes 1.5 and returns.
+    ag = jnp.array(
+        [
+            [[2.0, 2.0], [2.6, 2.0], [2.0, 2.0]],
+            [[0.0, 0.0], [0.0, 1.0], [0.0, 0.5]],
+            [[0.0, 0.0], [0.0, -1.5], [0.0, 0.0]],
+        ]
+    )
+    np.testing.assert_array_equal(rollout.stayed_at_start(ag, 1.0), [True, True, False])
+    np.testing.assert_array_equal(rollout.stayed_at_start(ag, 0.5), [False, False, False])
+
+
 def test_trajectories_start_at_the_reset_state_and_take_any_number_of_steps(medium_maze):
     env = medium_maze
     goals = jnp.asarray(env.goal_points[:3])

@@ -77,6 +77,19 @@ def walk_start(success: jax.Array) -> jax.Array:
     return jnp.where(success.any(axis=-1), first + 1, horizon).astype(jnp.int32)
 
 
+def stayed_at_start(achieved_goal: jax.Array, radius: float) -> jax.Array:
+    """Whether each episode's achieved goal never left the ball of `radius` around its first
+    one: (..., T + 1, goal_dim) -> (...,) bool.
+
+    With radius = the success radius this flags episodes that could not have reached any
+    goal farther than one radius (the ant standing still, the Sawyer peg never moved): the
+    signal behind a policy that stops trying for goals it cannot reach.
+    """
+    start = achieved_goal[..., :1, :]
+    farthest = jnp.linalg.norm(achieved_goal - start, axis=-1).max(axis=-1)
+    return farthest <= radius
+
+
 # --- the loop ---------------------------------------------------------------------------
 
 

@@ -255,6 +255,9 @@ class Agent:
         return {
             "train/success_rate": episodes.success.any(axis=1).mean(),
             "train/walk_share": 1.0 - episodes.walk_start.mean() / self.env.horizon,
+            "train/still_share": rollout.stayed_at_start(
+                episodes.achieved_goal, self.env.success_radius
+            ).mean(),
             "train/final_distance": envs.goal_distance(
                 episodes.achieved_goal[:, -1], episodes.goal[:, -1]
             ).mean(),
