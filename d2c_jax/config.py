@@ -94,6 +94,10 @@ class SACConfig:
     [0, 1], as HER implementations clip it (off: the paper's SAC)."""
     critic_layer_norm: bool = False
     """LayerNorm after each hidden Dense of the critics (off: the paper's SAC)."""
+    bounded_critic: bool = False
+    """Each critic outputs 1/(1 - gamma) * sigmoid(raw), inside the return's range of rewards
+    in [0, 1], so it cannot extrapolate below 0 on unseen goals (off: the paper's linear
+    output)."""
     log_std_min: float = -10.0
     """Lower end of the smooth log-std squashing."""
     log_std_max: float = 2.0

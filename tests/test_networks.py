@@ -1,5 +1,6 @@
 """Actor / twin critic: smooth log-std squashing, stable tanh log-det, stacked critics."""
 
+import dataclasses
 import math
 
 import chex
@@ -90,6 +91,24 @@ def test_critic_layer_norm_matches_a_hand_computed_forward_pass():
     plain = networks.make_networks(SACConfig(hidden_sizes=(32, 16)), StubEnv()).critic
     plain_params = plain.init(jax.random.key(1), jnp.zeros((1, 6)), jnp.zeros((1, 2)))
     assert "LayerNorm" not in str(jax.tree_util.tree_structure(plain_params))
+
+
+def test_bounded_critic_is_the_sigmoid_of_the_linear_critic_scaled_to_the_return_range():
+    cfg = SACConfig(hidden_sizes=(32, 16), gamma=0.99)
+    linear = networks.make_networks(cfg, StubEnv()).critic
+    bounded = networks.make_networks(
+        dataclasses.replace(cfg, bounded_critic=True), StubEnv()
+    ).critic
+    params = linear.init(jax.random.key(1), jnp.zeros((1, 6)), jnp.zeros((1, 2)))
+    # The same parameters: the option adds none.
+    bounded_params = bounded.init(jax.random.key(1), jnp.zeros((1, 6)), jnp.zeros((1, 2)))
+    assert jax.tree.structure(params) == jax.tree.structure(bounded_params)
+    feats = 30.0 * jax.random.normal(jax.random.key(2), (64, 6))  # far outside the data
+    action = jax.random.uniform(jax.random.key(3), (64, 2), minval=-1.0, maxval=1.0)
+    raw = np.asarray(linear.apply(params, feats, action), np.float64)
+    q = np.asarray(bounded.apply(params, feats, action), np.float64)
+    np.testing.assert_allclose(q, 100.0 / (1.0 + np.exp(-raw)), rtol=1e-4, atol=1e-4)
+    assert (raw < 0).any() and (q >= 0).all() and (q <= 100.0).all()
 
 
 def _actor_with_raw_log_std(nets, raw: float):

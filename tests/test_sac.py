@@ -172,6 +172,15 @@ def test_probe_two_steps_with_critic_layer_norm():
     np.testing.assert_allclose(q[:, 0], cfg.gamma, atol=0.05)
 
 
+def test_probe_two_steps_with_bounded_critic():
+    """The same two-step values with the sigmoid-bounded critic (`bounded_critic`): Q(s1) =
+    1 and Q(s0) = gamma, inside its range (0, 1/(1 - gamma)) = (0, 5) here."""
+    cfg = dataclasses.replace(PROBE_CFG, bounded_critic=True)
+    q, _ = probe(Probe(first=0.5, c=1.0, k=0.0, a_star=0.0), cfg)
+    np.testing.assert_allclose(q[:, 1], 1.0, atol=0.05)
+    np.testing.assert_allclose(q[:, 0], cfg.gamma, atol=0.05)
+
+
 # --- losses -----------------------------------------------------------------------------
 
 

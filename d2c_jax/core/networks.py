@@ -97,15 +97,23 @@ class Actor(nn.Module):
 
 
 class QNetwork(nn.Module):
-    """One critic Q(s, a, g): (..., feat_dim), (..., action_dim) -> (...,)."""
+    """One critic Q(s, a, g): (..., feat_dim), (..., action_dim) -> (...,).
+
+    With `output_bound` = b, the output is b * sigmoid(raw) in (0, b): the critic cannot
+    extrapolate outside the return's range (`SACConfig.bounded_critic`).
+    """
 
     hidden_sizes: tuple[int, ...]
     layer_norm: bool = False
+    output_bound: float | None = None
 
     @nn.compact
     def __call__(self, features: jax.Array, action: jax.Array) -> jax.Array:
         x = jnp.concatenate([features, action], axis=-1)
-        return MLP(self.hidden_sizes, 1, layer_norm=self.layer_norm)(x)[..., 0]
+        raw = MLP(self.hidden_sizes, 1, layer_norm=self.layer_norm)(x)[..., 0]
+        if self.output_bound is None:
+            return raw
+        return self.output_bound * jax.nn.sigmoid(raw)
 
 
 class TwinCritic(nn.Module):
@@ -117,6 +125,7 @@ class TwinCritic(nn.Module):
 
     hidden_sizes: tuple[int, ...]
     layer_norm: bool = False
+    output_bound: float | None = None
 
     @nn.compact
     def __call__(self, features: jax.Array, action: jax.Array) -> jax.Array:
@@ -128,7 +137,8 @@ class TwinCritic(nn.Module):
             out_axes=0,
             axis_size=N_CRITICS,
         )
-        return stacked(self.hidden_sizes, self.layer_norm, name="members")(features, action)
+        members = stacked(self.hidden_sizes, self.layer_norm, self.output_bound, name="members")
+        return members(features, action)
 
 
 class SACNetworks(NamedTuple):
@@ -146,7 +156,11 @@ def make_networks(cfg: SACConfig, env) -> SACNetworks:
         log_std_min=cfg.log_std_min,
         log_std_max=cfg.log_std_max,
     )
-    critic = TwinCritic(hidden_sizes=tuple(cfg.hidden_sizes), layer_norm=cfg.critic_layer_norm)
+    # The return's range [0, 1/(1 - gamma)] of rewards in [0, 1] (SPEC §4's sanity bound).
+    bound = 1.0 / (1.0 - cfg.gamma) if cfg.bounded_critic else None
+    critic = TwinCritic(
+        hidden_sizes=tuple(cfg.hidden_sizes), layer_norm=cfg.critic_layer_norm, output_bound=bound
+    )
     return SACNetworks(actor=actor, critic=critic)
 
 
