@@ -18,8 +18,10 @@ curriculum is mode-agnostic, docs/DEVIATIONS.md).
 `--reach N` adds where the policy can go: for each free cell, the share of N episodes
 from the start state (SPEC §7's evaluation: deterministic actor, no goal switching,
 success within the radius at any step) that reach that cell's centre as the goal
-(10 x, 0-9; `A` = every episode). Set beside the visits, it tells cells the agent has
-been to from cells its goal-conditioned policy can reach on demand.
+(10 x, 0-9; `A` = every episode), and the share of them whose achieved goal never
+leaves the success radius around its start (the policy stands still for that goal). Set
+beside the visits, it tells cells the agent has been to from cells its goal-conditioned
+policy can reach on demand, and the goals it does not even try for.
 """
 
 from __future__ import annotations
@@ -124,9 +126,12 @@ def head_maps(net, params, grid: Grid, goal: np.ndarray) -> np.ndarray:
     return probs.T.reshape(-1, len(grid.layout), len(grid.layout[0]))
 
 
-def reach_rates(env, policy, grid: Grid, episodes: int, key) -> np.ndarray:
-    """(rows, cols) share of `episodes` deterministic episodes that reach each free cell's
-    centre, NaN on '#' cells (`rollout.success_rates`: SPEC §7's episodes).
+def reach_rates(env, policy, grid: Grid, episodes: int, key) -> tuple[np.ndarray, np.ndarray]:
+    """Per free cell, with its centre as the goal, over `episodes` deterministic episodes
+    (SPEC §7's: from the start state with its reset noise, no goal switching): the share
+    that reach it, and the share that never leave the success radius around their start
+    (`rollout.stayed_at_start`: the policy stands still for that goal). Both
+    (rows, cols), NaN on '#' cells.
 
     Args:
       env: the environment; policy: a `rollout.Policy` (pass the deterministic actor).
@@ -135,12 +140,22 @@ def reach_rates(env, policy, grid: Grid, episodes: int, key) -> np.ndarray:
     from d2c_jax.core import rollout
 
     free = np.array([ch != "#" for row in grid.layout for ch in row])
-    goals = grid.centres[free].astype(np.float32)
-    rates = np.full(free.shape, np.nan)
-    rates[free] = jax.jit(lambda g, k: rollout.success_rates(env, policy, g, episodes, k))(
-        goals, key
-    )
-    return rates.reshape(len(grid.layout), len(grid.layout[0]))
+    goals = np.repeat(grid.centres[free].astype(np.float32), episodes, axis=0)
+
+    def play(g, k):
+        record = lambda before, action, after: (after.success, after.achieved_goal)  # noqa: E731
+        first, (success, achieved) = rollout.run(env, policy, g, k, record=record)
+        path = jax.numpy.concatenate([first.achieved_goal[:, None], achieved], axis=1)
+        return success.any(axis=1), rollout.stayed_at_start(path, env.success_radius)
+
+    hit, still = (np.asarray(x, np.float64) for x in jax.jit(play)(goals, key))
+    shape = (len(grid.layout), len(grid.layout[0]))
+    per_cell = []
+    for flags in (hit, still):
+        rates = np.full(free.shape, np.nan)
+        rates[free] = flags.reshape(-1, episodes).mean(axis=1)
+        per_cell.append(rates.reshape(shape))
+    return per_cell[0], per_cell[1]
 
 
 def draw_reach(rates: np.ndarray) -> list[str]:
@@ -206,10 +221,14 @@ def main(argv=None) -> int:
         from d2c_jax.training import agent as agent_lib
 
         policy = agent_lib.Agent(cfg, env).policy(ts.sac, deterministic=True)
-        rates = reach_rates(env, policy, grid, args.reach, jax.random.key(args.seed_index))
-        print(f"10 x reach rate ({args.reach} deterministic episodes per cell)   visits (log10)")
-        for a, b in zip(draw_reach(rates), draw_counts(layout, every), strict=True):
-            print(f"{a}   {b}")
+        rates, still = reach_rates(env, policy, grid, args.reach, jax.random.key(args.seed_index))
+        print(
+            f"10 x reach rate, 10 x share standing still ({args.reach} deterministic "
+            "episodes per cell as the goal), visits (log10)"
+        )
+        maps = zip(draw_reach(rates), draw_reach(still), draw_counts(layout, every), strict=True)
+        for a, b, c in maps:
+            print(f"{a}   {b}   {c}")
     return 0
 
 

@@ -217,14 +217,34 @@ def test_visit_map_reach_rates_of_a_policy_that_never_moves():
     env = envs.make("medium_maze")
     grid = visit_map.env_grid(env)
     still = lambda obs, goal, key: jnp.zeros(env.action_dim)  # noqa: E731
-    rates = visit_map.reach_rates(env, still, grid, 2, jax.random.key(0))
+    rates, standing = visit_map.reach_rates(env, still, grid, 2, jax.random.key(0))
     walls = np.array([[ch == "#" for ch in row] for row in env.layout])
     np.testing.assert_array_equal(np.isnan(rates), walls)
     want = np.where(walls, np.nan, 0.0)
     want[5, 5] = 1.0  # S
     np.testing.assert_array_equal(rates, want)
+    np.testing.assert_array_equal(standing, np.where(walls, np.nan, 1.0))  # for every goal
     assert visit_map.draw_reach(rates)[5] == "#0000A0000#"
     assert visit_map.draw_reach(np.array([[0.35, np.nan, 0.99]])) == ["3#9"]
+
+
+def test_visit_map_reach_rates_of_a_policy_that_runs_right(medium_maze):
+    """Full speed along +x from the start: it never stands still, and it reaches the four
+    corridor cells to its right (x = 4..16) and no other; not even S, which it has left
+    after the first step (success is read after each step, SPEC §7)."""
+    import jax
+    import jax.numpy as jnp
+
+    from benchmarks import visit_map
+
+    go_right = lambda obs, goal, key: jnp.array([1.0, -obs[2]])  # noqa: E731
+    grid = visit_map.env_grid(medium_maze)
+    rates, standing = visit_map.reach_rates(medium_maze, go_right, grid, 1, jax.random.key(0))
+    walls = np.array([[ch == "#" for ch in row] for row in medium_maze.layout])
+    want = np.where(walls, np.nan, 0.0)
+    want[5, 6:10] = 1.0
+    np.testing.assert_array_equal(rates, want)
+    np.testing.assert_array_equal(standing, np.where(walls, np.nan, 0.0))
 
 
 def test_ant_gait_cpg_action_by_hand_and_bad_input(capsys):
