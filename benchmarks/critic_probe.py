@@ -33,22 +33,12 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from d2c_jax.core import replay, sac
+from d2c_jax.core import replay, rollout, sac
 from d2c_jax.training import agent as agent_lib
 from d2c_jax.training import runs
 
 BLOCKS = 8
 """Blocks of the buffer, oldest to newest, for the still share."""
-
-
-def still_share(achieved_goal: np.ndarray, radius: float) -> np.ndarray:
-    """(E,) bool: the achieved goal stays within `radius` of phi(s_0) for the whole episode.
-
-    Args:
-      achieved_goal: (E, H + 1, goal_dim) phi(s_t) of E episodes.
-    """
-    moved = np.linalg.norm(achieved_goal - achieved_goal[:, :1], axis=-1).max(axis=1)
-    return moved < radius
 
 
 def already_reached_share(
@@ -94,7 +84,7 @@ def report(cfg, env, ts, episodes: int) -> list[str]:
         f"V(s_t, g_t) over the newest {len(newest)} episodes: mean {v.mean():.1f}, "
         f"1st percentile {np.percentile(v, 1):.1f}, below the floor {np.mean(v < floor):.2f}"
     )
-    still = still_share(rp.achieved_goal[order], env.success_radius)
+    still = np.asarray(rollout.stayed_at_start(rp.achieved_goal[order], env.success_radius))
     horizon = rp.action.shape[1]
     step_now = int(ts.env_steps)
     shares = []

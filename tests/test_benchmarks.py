@@ -51,19 +51,6 @@ def test_critic_layer_norm_adds_little_arithmetic_to_the_update():
     assert 1.0 < with_ln / plain < 1.1, (plain, with_ln)
 
 
-def test_critic_probe_still_share_by_hand():
-    from benchmarks import critic_probe
-
-    # Three episodes of 2 steps in 2-d goal space, radius 1: one that stays within 0.9
-    # of its start, one that reaches 1.0 away (not still), one that goes and comes back.
-    ag = np.array([
-        [[0.0, 0.0], [0.5, 0.0], [0.0, 0.9]],
-        [[1.0, 1.0], [1.0, 2.0], [1.0, 1.5]],
-        [[5.0, 5.0], [8.0, 5.0], [5.0, 5.0]],
-    ])  # fmt: skip
-    np.testing.assert_array_equal(critic_probe.still_share(ag, 1.0), [True, False, False])
-
-
 def test_critic_probe_already_reached_share_by_hand():
     """phi moves 1 per step over H = 5 steps, radius 2.5: the future goal t' is within the
     radius iff t' - t <= 2, a share of 2/5, 2/4, 2/3, 1 and 1 at t = 0..4; mean 0.7133.
