@@ -7,7 +7,8 @@ curriculum's slots and the evaluation goals), so `eval/success` reads whether th
 learns to reach *those* points. With points a cell or two from the start it separates
 "can the agent learn to walk to a goal at all" from "does the curriculum bring it to the
 modes" (benchmarks/RESULTS.md, "The Ant stands still for goals past its frontier"). The
-run directory records the points in `goal_probe.json`; tools that rebuild the env from
+run directory gets the points in `goal_probe.json` when train.py returns (a run it
+resumes is given the same points again on the command line); tools that rebuild the env from
 config.json (`d2c_jax.evaluate`, `benchmarks.visit_map`) see the env's own modes.
 """
 
