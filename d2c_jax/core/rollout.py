@@ -24,7 +24,7 @@ from typing import Any, Callable, NamedTuple
 import jax
 import jax.numpy as jnp
 
-from envs import EnvState, GoalEnv
+from envs import EnvState, GoalEnv, goal_distance
 
 # policy(obs (obs_dim,), goal (goal_dim,), key) -> action (action_dim,)
 Policy = Callable[[jax.Array, jax.Array, jax.Array], jax.Array]
@@ -85,8 +85,7 @@ def stayed_at_start(achieved_goal: jax.Array, radius: float) -> jax.Array:
     goal farther than one radius (the ant standing still, the Sawyer peg never moved): the
     signal behind a policy that stops trying for goals it cannot reach.
     """
-    start = achieved_goal[..., :1, :]
-    farthest = jnp.linalg.norm(achieved_goal - start, axis=-1).max(axis=-1)
+    farthest = goal_distance(achieved_goal, achieved_goal[..., :1, :]).max(axis=-1)
     return farthest <= radius
 
 
