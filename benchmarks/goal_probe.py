@@ -15,7 +15,6 @@ config.json (`d2c_jax.evaluate`, `benchmarks.visit_map`) see the env's own modes
 from __future__ import annotations
 
 import json
-import pathlib
 import sys
 
 import numpy as np
@@ -60,16 +59,6 @@ def moved_make(points: np.ndarray, make=envs.make):
     return make_moved
 
 
-def _out_dir(train_args: list[str]) -> pathlib.Path | None:
-    """The run directory `--out DIR` (or `--out=DIR`) names, if any."""
-    for i, arg in enumerate(train_args):
-        if arg == "--out" and i + 1 < len(train_args):
-            return pathlib.Path(train_args[i + 1])
-        if arg.startswith("--out="):
-            return pathlib.Path(arg.split("=", 1)[1])
-    return None
-
-
 def main(argv=None) -> int:
     argv = sys.argv[1:] if argv is None else argv
     if len(argv) < 2 or argv[1] != "--":
@@ -91,8 +80,11 @@ def main(argv=None) -> int:
     except ValueError as err:  # the points' dimension against the env's
         print(f"error: {err}", file=sys.stderr)
         return 2
-    out = _out_dir(train_args)
-    if out is not None and out.is_dir():
+    try:  # the run directory the CLI resolved, its default included
+        out = cli.parse_args(train_args)[1]
+    except cli.UsageError:  # bad train.py input: main has said so and returned 2
+        return status
+    if out.is_dir():
         (out / PROBE_FILE).write_text(json.dumps({"goal_points": points.tolist()}) + "\n")
     return status
 
