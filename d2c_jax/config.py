@@ -98,6 +98,9 @@ class SACConfig:
     """Each critic outputs 1/(1 - gamma) * sigmoid(raw), inside the return's range of rewards
     in [0, 1], so it cannot extrapolate below 0 on unseen goals (off: the paper's linear
     output)."""
+    relative_goal: bool = False
+    """Actor and critic see the goal as its offset g - phi(s) from the achieved goal, in
+    normalised units, instead of g itself (HIRO's low-level input; off: SPEC §4's input)."""
     log_std_min: float = -10.0
     """Lower end of the smooth log-std squashing."""
     log_std_max: float = 2.0

@@ -236,6 +236,10 @@ class Ant(GoalEnv):
     def _achieved_goal(self, data: mjx.Data) -> jax.Array:
         return data.qpos[:2].astype(jnp.float32)
 
+    def goal_of_obs(self, obs: jax.Array) -> jax.Array:
+        """phi from an observation (..., 29) -> (..., 2): the torso xy, obs[:2]."""
+        return obs[..., 0:2]
+
     def normalize_obs(self, obs: jax.Array) -> jax.Array:
         """(..., 29) -> (..., 29), each feature about [-1, 1].
 

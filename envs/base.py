@@ -76,6 +76,14 @@ class GoalEnv(abc.ABC):
     def normalize_obs(self, obs: jax.Array) -> jax.Array:
         """Fixed affine map of obs (..., obs_dim) to features of about [-1, 1]."""
 
+    @abc.abstractmethod
+    def goal_of_obs(self, obs: jax.Array) -> jax.Array:
+        """phi read back from an observation: (..., obs_dim) -> (..., goal_dim).
+
+        Equals `achieved_goal` of the state the observation was made in; the relative goal
+        input (`agent_input(..., relative_goal=True)`) uses it.
+        """
+
     # --- the public contract --------------------------------------------------
     @property
     def n_modes(self) -> int:
@@ -153,16 +161,25 @@ class GoalEnv(abc.ABC):
         return self.clip_goal(u)
 
 
-def agent_input(env, obs: jax.Array, goal: jax.Array) -> jax.Array:
+def agent_input(
+    env, obs: jax.Array, goal: jax.Array, relative_goal: bool = False
+) -> jax.Array:
     """The goal-conditioned input of a policy or value: (..., obs_dim), (..., goal_dim) ->
     (..., feat_dim) float32.
 
     concat(env.normalize_obs(obs), env.normalize_goal(goal)) (SPEC §4: fixed affine maps,
     no running statistics). `obs` and `goal` broadcast against each other. Our networks
     (`d2c_jax.core.networks.actor_input`) and the brax adapter both use it.
+
+    `relative_goal` (static) replaces the goal feature by the goal's offset from phi(s),
+    normalize_goal(g) - normalize_goal(phi(s)) = (g - phi(s)) / half-extent, as HIRO's
+    low-level policy sees its goal: the same offset then reads the same wherever the agent
+    stands. The width is unchanged and g = phi(s) + offset, so no information is lost.
     """
     obs_feat = env.normalize_obs(obs)
     goal_feat = env.normalize_goal(goal)
+    if relative_goal:
+        goal_feat = goal_feat - env.normalize_goal(env.goal_of_obs(obs))
     batch = jnp.broadcast_shapes(obs_feat.shape[:-1], goal_feat.shape[:-1])
     obs_feat = jnp.broadcast_to(obs_feat, batch + obs_feat.shape[-1:])
     goal_feat = jnp.broadcast_to(goal_feat, batch + goal_feat.shape[-1:])

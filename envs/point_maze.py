@@ -235,6 +235,10 @@ class PointMaze(GoalEnv):
     def _achieved_goal(self, data: mjx.Data) -> jax.Array:
         return data.qpos[:2].astype(jnp.float32)
 
+    def goal_of_obs(self, obs: jax.Array) -> jax.Array:
+        """phi from an observation (..., 6) -> (..., 2): the xy position, obs[:2]."""
+        return obs[..., :2]
+
     def normalize_obs(self, obs: jax.Array) -> jax.Array:
         """(..., 6) -> (..., 7): xy by the goal bounds, heading as (sin, cos), speeds / 50."""
         xy = self.normalize_goal(obs[..., :2])

@@ -179,6 +179,10 @@ class SawyerPeg(GoalEnv):
     def _achieved_goal(self, data: mjx.Data) -> jax.Array:
         return data.qpos[self._peg_adr : self._peg_adr + 3].astype(jnp.float32)
 
+    def goal_of_obs(self, obs: jax.Array) -> jax.Array:
+        """phi from an observation (..., 7) -> (..., 3): the peg centre, obs[4:7]."""
+        return obs[..., 4:7]
+
     def normalize_obs(self, obs: jax.Array) -> jax.Array:
         """(..., 7) -> (..., 7): hand by its bounds, opening by [0, 0.08], peg by goal bounds."""
         hand_c, hand_h = (HAND_HIGH + HAND_LOW) / 2, (HAND_HIGH - HAND_LOW) / 2

@@ -206,7 +206,7 @@ def test_normalize_obs_and_goal(env):
 
 
 # --- physics: one compiled rollout ---------------------------------------------------------
-def test_rollout_contract_shapes_and_finite(run):
+def test_rollout_contract_shapes_and_finite(env, run):
     final, n = run["final"], run["obs"].shape[1]
     chex.assert_shape(final.obs, (n, 29))
     chex.assert_shape([final.achieved_goal, final.goal], (n, 2))
@@ -215,6 +215,8 @@ def test_rollout_contract_shapes_and_finite(run):
     assert final.obs.dtype == jnp.float32 and final.success.dtype == jnp.bool_
     np.testing.assert_array_equal(final.obs, run["obs"][-1])
     np.testing.assert_array_equal(final.achieved_goal, run["obs"][-1, :, :2])
+    # phi read back from the obs (the relative goal input's map) is the achieved goal
+    np.testing.assert_array_equal(env.goal_of_obs(final.obs), final.achieved_goal)
     chex.assert_shape(run["obs"], (H, n, 29))
     assert np.isfinite(run["obs"]).all()
 

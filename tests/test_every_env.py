@@ -30,6 +30,28 @@ def test_tiny_preset_trains_and_evaluates(env_name, tmp_path, undocumented_metri
     assert (out / "plots" / "curriculum.png").exists()
 
 
+@pytest.mark.parametrize(
+    "env_name",
+    ["medium_maze"]
+    + [pytest.param(e, marks=pytest.mark.slow) for e in ("ant", "sawyer_pick_place")],
+)
+def test_relative_goal_input_trains_on_each_family(env_name, tmp_path):
+    """`--sac.relative-goal true` through the CLI, one env per family (each family reads
+    phi back from its obs with its own `goal_of_obs`, which the env tests check against
+    `achieved_goal`). The Ant and Sawyer runs compile their MJX programs anew (1-2 min
+    each on 2 cores), so they are slow tests."""
+    from d2c_jax.training import logging as logging_lib
+
+    args = ["--env", env_name, "--preset", "tiny", "--sac.relative-goal", "true"]
+    cfg, _, _ = cli.parse_args(args)
+    assert cfg.sac.relative_goal
+    out = tmp_path / "run"
+    assert loop.train(cfg, out, quiet=True) == 0
+    last = logging_lib.read_metrics(out / "metrics.jsonl")[-1]
+    for key in ("eval/success", "sac/critic_loss", "sac/q_mean"):
+        assert np.isfinite(last[key]), key
+
+
 def _goal_spread(row: dict, start_goal: np.ndarray) -> float:
     """Mean distance of a row's curriculum goals (K, d) from the start goal."""
     goals = np.asarray(row["curriculum/goals"], np.float64).reshape(-1, start_goal.shape[-1])

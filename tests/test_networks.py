@@ -24,6 +24,9 @@ class StubEnv:
     def normalize_goal(self, goal):
         return goal / 5.0
 
+    def goal_of_obs(self, obs):
+        return obs[..., 1:3]
+
 
 CFG = SACConfig(hidden_sizes=(32, 32))
 
@@ -42,6 +45,20 @@ def test_actor_input_concatenates_normalised_obs_and_goal():
     assert networks.feature_dim(env) == 6
     # One obs broadcast against a grid of goals (the +Value ablation's use).
     assert networks.actor_input(env, obs, jnp.zeros((4, 5, 2))).shape == (4, 5, 6)
+
+
+def test_relative_goal_input_is_the_normalised_offset_from_phi():
+    env = StubEnv()
+    obs = jnp.arange(3.0)  # phi = obs[1:3] = (1, 2)
+    goal = jnp.array([5.0, -10.0])
+    feats = networks.actor_input(env, obs, goal, relative_goal=True)
+    # obs features as before; goal feature (5 - 1, -10 - 2) / 5 = (0.8, -2.4)
+    np.testing.assert_allclose(feats, [0.0, 0.1, 0.2, 0.0, 0.8, -2.4], rtol=1e-6)
+    # the same offset from another position gives the same goal feature
+    moved = networks.actor_input(env, obs + 3.0, goal + 3.0, relative_goal=True)
+    np.testing.assert_allclose(moved[4:], feats[4:], rtol=1e-6)
+    assert networks.make_networks(SACConfig(relative_goal=True), env).relative_goal
+    assert not networks.make_networks(SACConfig(), env).relative_goal
 
 
 def test_twin_critic_params_are_stacked_and_distinct(nets):

@@ -38,6 +38,7 @@ def test_reset_step_jit_vmap_shapes_and_no_retrace(maze):
     chex.assert_shape(state.success, (8,))
     chex.assert_shape(state.data.qpos, (8, 3))
     assert np.isfinite(np.asarray(state.obs)).all()
+    np.testing.assert_array_equal(maze.goal_of_obs(state.obs), state.achieved_goal)
     # Goals of reset are mode points.
     goals = np.asarray(state.goal)
     assert all(np.abs(maze.goal_points - g).sum(-1).min() == 0 for g in goals)

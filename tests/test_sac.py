@@ -42,6 +42,9 @@ class SmallEnv:
     def normalize_goal(self, goal):
         return goal / 4.0
 
+    def goal_of_obs(self, obs):
+        return obs[..., :2]
+
 
 # gamma 0.8: far from 1, so Q(s0) = gamma is distinguishable from Q(s1) = 1.
 PROBE_CFG = SACConfig(
@@ -288,9 +291,9 @@ def test_block_is_critic_then_critic_actor_alpha_and_target_by_hand(small):
         k0, k1 = jax.random.split(key, 2)  # the block's key per update
         k0_critic, _ = jax.random.split(k0)
         k1_critic, k1_actor = jax.random.split(k1)
-        f0, n0 = sac._features(env, b0)
+        f0, n0 = sac._features(nets, env, b0)
         first, _ = sac._critic_step(CFG, nets, opt, hp, state, f0, n0, b0, k0_critic)
-        f1, n1 = sac._features(env, b1)
+        f1, n1 = sac._features(nets, env, b1)
         second, _ = sac._critic_step(CFG, nets, opt, hp, first, f1, n1, b1, k1_critic)
         second = sac._actor_step(CFG, nets, opt, hp, second, f1, env.action_dim, k1_actor)
         return first, sac._polyak(second, hp.tau)
@@ -373,6 +376,36 @@ def test_policy_and_state_value(small):
     det = networks.select_action(nets, state.actor_params, feats, None, deterministic=True)
     q = nets.critic.apply(state.critic_params, feats, det)
     np.testing.assert_allclose(v[0, 0], q.min(), rtol=1e-5)
+
+
+def test_relative_goal_acts_and_learns_as_the_absolute_nets_on_the_offset(small):
+    """`relative_goal`: on transitions whose phi does not move (phi(s') = phi(s)), the
+    update with goal g equals the absolute update with goal g - phi(s) (SmallEnv's goal
+    normalisation is linear), and so does the policy; the plain nets differ."""
+    env, s0 = small.env, small.state
+    cfg = dataclasses.replace(CFG, relative_goal=True)
+    nets, opt, hp = parts(cfg, env)
+    batches = stack(*small.batches[:2])
+    batches = batches._replace(next_obs=batches.next_obs.at[..., :2].set(batches.obs[..., :2]))
+    offset = batches._replace(goal=batches.goal - batches.obs[..., :2])
+    key = jax.random.key(3)
+    relative, _ = jax.jit(lambda s: sac.update_sac_block(cfg, nets, opt, hp, s, batches, env, key))(
+        s0
+    )
+    absolute, _ = small.block(s0, offset, key)
+    chex.assert_trees_all_close(relative, absolute, rtol=1e-4, atol=1e-6)
+    plain, _ = small.block(s0, batches, key)
+    assert not np.allclose(
+        jax.tree.leaves(plain.actor_params)[0], jax.tree.leaves(relative.actor_params)[0]
+    )
+    obs, goal = jnp.array([1.0, -2.0, 0.5]), jnp.array([3.0, 1.0])
+    act = sac.make_policy(nets, relative, env, deterministic=True)(obs, goal, None)
+    ref = sac.make_policy(small.nets, relative, env, deterministic=True)(obs, goal - obs[:2], None)
+    np.testing.assert_allclose(act, ref, rtol=1e-5)
+    v = sac.state_value(nets, relative, env, obs, goal)
+    np.testing.assert_allclose(
+        v, sac.state_value(small.nets, relative, env, obs, goal - obs[:2]), rtol=1e-5
+    )
 
 
 def test_clipped_targets_stay_in_the_return_range(small):

@@ -427,6 +427,7 @@ def test_rollout_contract_shapes_and_finite(run):
     assert final.obs.dtype == jnp.float32 and final.success.dtype == jnp.bool_
     np.testing.assert_array_equal(final.obs, run["obs"][-1])
     np.testing.assert_array_equal(final.achieved_goal, run["obs"][-1, :, 4:])
+    np.testing.assert_array_equal(env.goal_of_obs(final.obs), final.achieved_goal)
     np.testing.assert_array_equal(final.goal, run["goals"])  # step keeps the goal
     chex.assert_shape(run["obs"], (H, n, 7))
     chex.assert_shape(run["success"], (H, n))

@@ -146,6 +146,8 @@ class SACNetworks(NamedTuple):
 
     actor: Actor
     critic: TwinCritic
+    relative_goal: bool = False
+    """Both networks see the goal as its offset from phi(s) (`SACConfig.relative_goal`)."""
 
 
 def make_networks(cfg: SACConfig, env) -> SACNetworks:
@@ -161,19 +163,22 @@ def make_networks(cfg: SACConfig, env) -> SACNetworks:
     critic = TwinCritic(
         hidden_sizes=tuple(cfg.hidden_sizes), layer_norm=cfg.critic_layer_norm, output_bound=bound
     )
-    return SACNetworks(actor=actor, critic=critic)
+    return SACNetworks(actor=actor, critic=critic, relative_goal=cfg.relative_goal)
 
 
 # --- features ---------------------------------------------------------------------------
 
 
-def actor_input(env, obs: jax.Array, goal: jax.Array) -> jax.Array:
+def actor_input(
+    env, obs: jax.Array, goal: jax.Array, relative_goal: bool = False
+) -> jax.Array:
     """Network features: (..., obs_dim), (..., goal_dim) -> (..., feat_dim).
 
     concat(env.normalize_obs(obs), env.normalize_goal(goal)) (SPEC §4), defined once in
-    `envs.base.agent_input`, which the brax adapter shares.
+    `envs.base.agent_input`, which the brax adapter shares; `relative_goal` (static) gives
+    the goal as its offset from phi(s) instead (same width).
     """
-    return env_base.agent_input(env, obs, goal)
+    return env_base.agent_input(env, obs, goal, relative_goal)
 
 
 def feature_dim(env) -> int:

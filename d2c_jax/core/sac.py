@@ -255,10 +255,10 @@ def _polyak(state: SACState, tau: jax.Array | float) -> SACState:
     return state.replace(target_critic_params=target)
 
 
-def _features(env, batch: Batch) -> tuple[jax.Array, jax.Array]:
+def _features(nets: networks.SACNetworks, env, batch: Batch) -> tuple[jax.Array, jax.Array]:
     """(B, feat_dim) features of (s, g) and (s', g), computed once per update."""
-    feats = networks.actor_input(env, batch.obs, batch.goal)
-    next_feats = networks.actor_input(env, batch.next_obs, batch.goal)
+    feats = networks.actor_input(env, batch.obs, batch.goal, nets.relative_goal)
+    next_feats = networks.actor_input(env, batch.next_obs, batch.goal, nets.relative_goal)
     return feats, next_feats
 
 
@@ -301,7 +301,7 @@ def update_sac_block(
     for i in range(n):
         batch = jax.tree.map(lambda x, i=i: x[i], batches)
         key_critic, key_actor = jax.random.split(keys[i])
-        feats, next_feats = _features(env, batch)
+        feats, next_feats = _features(nets, env, batch)
         state, metrics = _critic_step(
             cfg, nets, opt, hp, state, feats, next_feats, batch, key_critic
         )
@@ -324,7 +324,7 @@ def make_policy(nets: networks.SACNetworks, state: SACState, env, deterministic:
     """
 
     def policy(obs: jax.Array, goal: jax.Array, key: jax.Array) -> jax.Array:
-        feats = networks.actor_input(env, obs, goal)
+        feats = networks.actor_input(env, obs, goal, nets.relative_goal)
         return networks.select_action(nets, state.actor_params, feats, key, deterministic)
 
     return policy
@@ -343,6 +343,6 @@ def state_value(
     Returns:
       (...,) values.
     """
-    feats = networks.actor_input(env, obs, goals)
+    feats = networks.actor_input(env, obs, goals, nets.relative_goal)
     action = networks.select_action(nets, state.actor_params, feats, None, deterministic=True)
     return jnp.min(nets.critic.apply(state.critic_params, feats, action), axis=0)
