@@ -98,6 +98,10 @@ class SACConfig:
     """Each critic outputs 1/(1 - gamma) * sigmoid(raw), inside the return's range of rewards
     in [0, 1], so it cannot extrapolate below 0 on unseen goals (off: the paper's linear
     output)."""
+    terminal_on_success: bool = False
+    """The critic stops bootstrapping where s_{t+1} reaches the (relabelled) goal, as
+    OUTPACE's code does (done_on_success, consider_done_true_in_critic); off: SPEC §4's
+    no terminal. Curricula whose own code ends there (OUTPACE) always do."""
     relative_goal: bool = False
     """Actor and critic see the goal as its offset g - phi(s) from the achieved goal, in
     normalised units, instead of g itself (HIRO's low-level input; off: SPEC §4's input)."""

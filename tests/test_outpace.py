@@ -1,5 +1,7 @@
 """OUTPACE's parts (`--algo outpace`, issue 19): meta-NML, the AIM potential, the run."""
 
+import dataclasses
+
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -172,3 +174,7 @@ def test_outpace_critic_stops_at_success_and_d2cs_does_not():
             np.testing.assert_array_equal(terminal_fn(ag, goal), [1.0, 0.0])
         else:
             assert terminal_fn is None, algo
+    # `sac.terminal_on_success` gives D2C OUTPACE's terminal
+    cfg = config.preset("medium_maze", "tiny")
+    cfg = dataclasses.replace(cfg, sac=dataclasses.replace(cfg.sac, terminal_on_success=True))
+    np.testing.assert_array_equal(agent_lib.Agent(cfg, maze).terminal_fn()(ag, goal), [1.0, 0.0])

@@ -169,9 +169,7 @@ def make_networks(cfg: SACConfig, env) -> SACNetworks:
 # --- features ---------------------------------------------------------------------------
 
 
-def actor_input(
-    env, obs: jax.Array, goal: jax.Array, relative_goal: bool = False
-) -> jax.Array:
+def actor_input(env, obs: jax.Array, goal: jax.Array, relative_goal: bool = False) -> jax.Array:
     """Network features: (..., obs_dim), (..., goal_dim) -> (..., feat_dim).
 
     concat(env.normalize_obs(obs), env.normalize_goal(goal)) (SPEC §4), defined once in

@@ -430,8 +430,10 @@ class Agent:
 
     def terminal_fn(self) -> RewardFn | None:
         """Where the critic stops bootstrapping: success of the relabelled goal for a
-        curriculum whose own code ends there (OUTPACE), else None: no terminal (SPEC §4)."""
-        return her.sparse_reward_fn(self.env) if self.curriculum.terminal_on_success else None
+        curriculum whose own code ends there (OUTPACE) or with `sac.terminal_on_success`,
+        else None: no terminal (SPEC §4)."""
+        terminal = self.curriculum.terminal_on_success or self.cfg.sac.terminal_on_success
+        return her.sparse_reward_fn(self.env) if terminal else None
 
     def sac_blocks(self, ts: TrainState, n: int, key) -> tuple[TrainState, dict]:
         """`n` blocks of `sac.block_size` SAC updates (critic each, actor and target on
