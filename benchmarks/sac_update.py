@@ -169,7 +169,7 @@ def jax_update_parts(size: str = "paper", repeats: int = 15) -> list[tuple[str, 
     nets, opt, hp = networks.make_networks(cfg, env), sac.make_optimizers(), sac.hyperparams(cfg)
     state = sac.init_sac(nets, opt, env, hp, jax.random.key(0))
     b = jax.tree.map(lambda x: x[0], random_batch(env, batch, 1))
-    feats, next_feats = sac._features(env, b)
+    feats, next_feats = sac._features(nets, env, b)
     key = jax.random.key(1)
     actor = [FEATURES, *hidden, 2 * ACTIONS]
     critic = [FEATURES + ACTIONS, *hidden, 1]

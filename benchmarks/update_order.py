@@ -32,7 +32,7 @@ def simultaneous_block(cfg, nets, opt, hp, state, batches, env, key):
     assert sac.block_size(cfg) == 1, "brax's order is built for one-update blocks only"
     batch = jax.tree.map(lambda x: x[0], batches)
     key_critic, key_actor = jax.random.split(jax.random.split(key, 1)[0])
-    feats, next_feats = sac._features(env, batch)
+    feats, next_feats = sac._features(nets, env, batch)
     stepped, metrics = sac._critic_step(
         cfg, nets, opt, hp, state, feats, next_feats, batch, key_critic
     )
