@@ -161,9 +161,7 @@ class GoalEnv(abc.ABC):
         return self.clip_goal(u)
 
 
-def agent_input(
-    env, obs: jax.Array, goal: jax.Array, relative_goal: bool = False
-) -> jax.Array:
+def agent_input(env, obs: jax.Array, goal: jax.Array, relative_goal: bool = False) -> jax.Array:
     """The goal-conditioned input of a policy or value: (..., obs_dim), (..., goal_dim) ->
     (..., feat_dim) float32.
 
