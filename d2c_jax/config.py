@@ -198,6 +198,9 @@ class CurriculumConfig:
     """Match against the last this fraction of each pool trajectory plus its final state."""
     pool_min_move: float = 0.0
     """Pool episodes whose phi moved at most this from start to end are not candidates."""
+    pool_phase: Literal["all", "curriculum_phase"] = "all"
+    """Matching candidates from every state of a pool episode, or only from s_0..s_w, the
+    states reached pursuing the curriculum goal (w: its success step; `replay.hold_after`)."""
     archive_size: int = 0
     """Pool episodes drawn from the whole buffer, beside the P most recent."""
     archive_rarity: float = 0.0

@@ -353,8 +353,12 @@ def test_no_preset_on_cpu_means_quick_and_says_so_first():
     lines.clear()
     cfg, _, _ = cli.parse_args(["--env", "ant", "--preset", "paper"], notify=lines.append)
     assert cfg.preset == "paper" and lines == []
-    # The notice is the first line the user sees: train.py stops at the bad override
-    # after printing it, before anything compiles.
+    # Bad input's first line is its error: the notice waits until the whole command line
+    # is valid, so train.py stops at the bad override having printed nothing else.
+    lines.clear()
+    with pytest.raises(cli.UsageError):
+        cli.parse_args(["--env", "ant", "--sac.gamma", "1"], notify=lines.append)
+    assert lines == []
     result = subprocess.run(
         [sys.executable, "train.py", "--env", "ant", "--sac.gamma", "1"],
         capture_output=True,
@@ -363,8 +367,8 @@ def test_no_preset_on_cpu_means_quick_and_says_so_first():
         timeout=120,
         env={**os.environ, "JAX_PLATFORMS": "cpu"},
     )
-    assert result.returncode == 2
-    assert result.stdout.splitlines()[0] == cli.NO_ACCELERATOR_NOTICE
+    assert result.returncode == 2 and result.stdout == ""
+    assert result.stderr.splitlines()[0].startswith("error: --sac.gamma")
 
 
 def test_quick_preset_adds_exploration_everywhere_but_medium_maze():

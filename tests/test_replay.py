@@ -211,3 +211,13 @@ def test_weighted_archive_draws_in_proportion_to_the_weights():
     np.testing.assert_allclose(counts[1] / counts[0], 3.0, rtol=0.12)
     slots, valid = replay.archived_episode_slots(state, 4, jax.random.key(1), log_w)
     assert np.all(valid) and sorted(np.asarray(slots).tolist()) == [0, 1, 2, 3]
+
+
+def test_hold_after_repeats_the_state_at_stop_hand_computed():
+    # Two trajectories of 5 steps (values 0..4 and 5..9); stop 2 and 4 (nothing held).
+    x = jnp.arange(10.0).reshape(2, 5, 1)
+    held = replay.hold_after(x, jnp.asarray([2, 4]))
+    np.testing.assert_array_equal(held[..., 0], [[0, 1, 2, 2, 2], [5, 6, 7, 8, 9]])
+    # Trailing feature axes travel with their step.
+    xy = jnp.stack([x[..., 0], -x[..., 0]], -1)
+    np.testing.assert_array_equal(replay.hold_after(xy, jnp.asarray([0, 1]))[1, 3], [6, -6])

@@ -342,6 +342,41 @@ def test_archive_rarity_draws_the_episode_that_ended_where_nobody_goes(medium_ma
     assert 0.03 < picked[0.0] < 0.2
 
 
+def test_pool_phase_keeps_only_the_states_reached_pursuing_the_curriculum_goal(medium_maze):
+    """One episode reaches its goal at step 4 (walk_start 5) and its random walk then goes
+    to a far corner: with pool_phase="curriculum_phase" the matching pool holds s_0..s_5
+    and then s_5 again; with "all" it holds the corner."""
+    import jax
+
+    from d2c_jax.core import replay
+    from d2c_jax.core.rollout import Episodes
+
+    cfg = config.preset("medium_maze", "tiny")
+    horizon, n = medium_maze.horizon, cfg.curriculum.pool_size
+    ag = np.zeros((n, horizon + 1, 2), np.float32)
+    ag[-1, :, 0] = np.arange(horizon + 1)  # the newest episode walks along x
+    ag[-1, 6:] = [15.0, 15.0]  # after its success state s_5, the walk's corner
+    episodes = Episodes(
+        obs=np.zeros((n, horizon + 1, medium_maze.obs_dim), np.float32),
+        achieved_goal=ag,
+        action=np.zeros((n, horizon, 2), np.float32),
+        goal=np.zeros((n, horizon, 2), np.float32),
+        success=np.zeros((n, horizon), bool),
+        walk_start=np.where(np.arange(n) == n - 1, 5, horizon).astype(np.int32),
+    )
+    pools = {}
+    for phase in ("all", "curriculum_phase"):
+        cur = dataclasses.replace(cfg.curriculum, pool_phase=phase)
+        agent = agent_lib.Agent(dataclasses.replace(cfg, curriculum=cur), medium_maze)
+        ts = jax.tree.map(lambda x: x[0], agent.init_seeds())
+        ts = ts.replace(replay=replay.insert_episodes(ts.replay, episodes))
+        pools[phase] = np.asarray(agent.curriculum_inputs(ts).pool_ag[0])  # the newest
+    np.testing.assert_array_equal(pools["all"], ag[-1])
+    held = pools["curriculum_phase"]
+    np.testing.assert_array_equal(held[:6], ag[-1, :6])
+    np.testing.assert_array_equal(held[6:], np.broadcast_to([5.0, 0.0], (horizon - 5, 2)))
+
+
 def test_sigterm_checkpoints_and_resume_continues(tmp_path):
     import signal
     import time

@@ -233,6 +233,21 @@ def sample_achieved_goals(
     return state.achieved_goal[ep, t]
 
 
+def hold_after(trajectories: jax.Array, stop: jax.Array) -> jax.Array:
+    """Each trajectory with its states after step `stop` replaced by the state at `stop`:
+    (P, T, ...), (P,) int -> (P, T, ...); row p, step t reads step min(t, stop_p).
+
+    With stop = `walk_start` a trajectory keeps s_0..s_w, the states reached while pursuing
+    the curriculum goal up to the one that reached it (`CurriculumConfig.pool_phase`):
+    a minimum over steps, or the first-to-last move, then sees only those states.
+    """
+    steps = jnp.arange(trajectories.shape[1])
+    held = jnp.minimum(steps[None, :], stop[:, None])  # (P, T)
+    return jnp.take_along_axis(
+        trajectories, held.reshape(held.shape + (1,) * (trajectories.ndim - 2)), axis=1
+    )
+
+
 def recent_episode_slots(state: ReplayState, p: int) -> tuple[jax.Array, jax.Array]:
     """Buffer slots (p,) int32 of the p most recent episodes (SPEC §5 pool), most recent
     first, and valid (p,) bool (false beyond the episodes stored so far, whose contents

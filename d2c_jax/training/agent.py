@@ -306,9 +306,13 @@ class Agent:
         else:
             slots, pool_valid = self._matching_pool(ts, pool_key)
         start_obs = self.constants.start_obs
+        pool_ag, pool_obs = ts.replay.achieved_goal[slots], ts.replay.obs[slots]
+        if self.cfg.curriculum.pool_phase == "curriculum_phase":
+            pool_ag = replay.hold_after(pool_ag, ts.replay.walk_start[slots])
+            pool_obs = replay.hold_after(pool_obs, ts.replay.walk_start[slots])
         return interface.CurriculumInputs(
-            pool_ag=ts.replay.achieved_goal[slots],  # (P + A, H + 1, d)
-            pool_obs=ts.replay.obs[slots] if cur.needs_pool_obs else None,
+            pool_ag=pool_ag,  # (P + A, H + 1, d)
+            pool_obs=pool_obs if cur.needs_pool_obs else None,
             pool_valid=pool_valid,
             start_goal=jnp.asarray(self.constants.start_goal),
             start_obs=None if start_obs is None else jnp.asarray(start_obs),

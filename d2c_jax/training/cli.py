@@ -332,16 +332,18 @@ def parse_args(
 ) -> tuple[config_lib.TrainConfig, pathlib.Path, bool]:
     """Parses the command line into (config, run directory, resume).
 
-    `notify` receives the line that explains a preset chosen for the user (no --preset).
+    `notify` receives the line that explains a preset chosen for the user (no --preset),
+    once the whole command line is valid: bad input's first line is its error.
 
     Raises:
       UsageError: for any bad input.
     """
     known, rest = _parser().parse_known_args(argv)
+    notices: list[str] = []
     if known.config is not None:
         cfg = saved_config(known.config, known)
     else:
-        cfg = _preset_config(known, notify)
+        cfg = _preset_config(known, notices.append)
     for flag, field in (("seed", "seed"), ("seeds", "num_seeds"), ("total_steps", "total_steps")):
         value = getattr(known, flag)
         if value is not None:
@@ -368,6 +370,8 @@ def parse_args(
     if known.out is not None and not known.out.strip():
         raise UsageError(f"--out must be a directory path, got {known.out!r}")
     out = pathlib.Path(known.out or default_out(cfg))
+    for line in notices:
+        notify(line)
     return cfg, out, known.resume
 
 
