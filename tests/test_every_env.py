@@ -30,25 +30,39 @@ def test_tiny_preset_trains_and_evaluates(env_name, tmp_path, undocumented_metri
     assert (out / "plots" / "curriculum.png").exists()
 
 
+_FAMILY_ENVS = ["medium_maze"] + [
+    pytest.param(e, marks=pytest.mark.slow) for e in ("ant", "sawyer_pick_place")
+]
+
+
+@pytest.mark.parametrize("env_name", _FAMILY_ENVS)
 @pytest.mark.parametrize(
-    "env_name",
-    ["medium_maze"]
-    + [pytest.param(e, marks=pytest.mark.slow) for e in ("ant", "sawyer_pick_place")],
+    "flag, value, field",
+    [
+        ("--sac.relative-goal", "true", ("sac", "relative_goal", True)),
+        (
+            "--curriculum.pool-phase",
+            "curriculum_phase",
+            ("curriculum", "pool_phase", "curriculum_phase"),
+        ),
+    ],
 )
-def test_relative_goal_input_trains_on_each_family(env_name, tmp_path):
-    """`--sac.relative-goal true` through the CLI, one env per family (each family reads
-    phi back from its obs with its own `goal_of_obs`, which the env tests check against
-    `achieved_goal`). The Ant and Sawyer runs compile their MJX programs anew (1-2 min
-    each on 2 cores), so they are slow tests."""
+def test_optional_inputs_train_on_each_family(env_name, flag, value, field, tmp_path):
+    """The default-off options through the CLI, one env per family:
+    `--sac.relative-goal true` (each family reads phi back from its obs with its own
+    `goal_of_obs`, which the env tests check against `achieved_goal`) and
+    `--curriculum.pool-phase curriculum_phase` (matching candidates held at each pool
+    episode's success state). The Ant and Sawyer runs compile their MJX programs anew
+    (1-2 min each on 2 cores), so they are slow tests."""
     from d2c_jax.training import logging as logging_lib
 
-    args = ["--env", env_name, "--preset", "tiny", "--sac.relative-goal", "true"]
-    cfg, _, _ = cli.parse_args(args)
-    assert cfg.sac.relative_goal
+    cfg, _, _ = cli.parse_args(["--env", env_name, "--preset", "tiny", flag, value])
+    section, name, expected = field
+    assert getattr(getattr(cfg, section), name) == expected
     out = tmp_path / "run"
     assert loop.train(cfg, out, quiet=True) == 0
     last = logging_lib.read_metrics(out / "metrics.jsonl")[-1]
-    for key in ("eval/success", "sac/critic_loss", "sac/q_mean"):
+    for key in ("eval/success", "sac/critic_loss", "sac/q_mean", "curriculum/distance"):
         assert np.isfinite(last[key]), key
 
 

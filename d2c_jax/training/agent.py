@@ -15,6 +15,7 @@ evaluates, logs and checkpoints is `d2c_jax.training.loop`.
 
 from __future__ import annotations
 
+import functools
 import math
 from typing import NamedTuple
 
@@ -306,13 +307,14 @@ class Agent:
         else:
             slots, pool_valid = self._matching_pool(ts, pool_key)
         start_obs = self.constants.start_obs
-        pool_ag, pool_obs = ts.replay.achieved_goal[slots], ts.replay.obs[slots]
+        pool_ag = ts.replay.achieved_goal[slots]  # (P + A, H + 1, d)
+        pool_obs = ts.replay.obs[slots] if cur.needs_pool_obs else None
         if self.cfg.curriculum.pool_phase == "curriculum_phase":
-            pool_ag = replay.hold_after(pool_ag, ts.replay.walk_start[slots])
-            pool_obs = replay.hold_after(pool_obs, ts.replay.walk_start[slots])
+            hold = functools.partial(replay.hold_after, stop=ts.replay.walk_start[slots])
+            pool_ag, pool_obs = hold(pool_ag), None if pool_obs is None else hold(pool_obs)
         return interface.CurriculumInputs(
-            pool_ag=pool_ag,  # (P + A, H + 1, d)
-            pool_obs=pool_obs if cur.needs_pool_obs else None,
+            pool_ag=pool_ag,
+            pool_obs=pool_obs,
             pool_valid=pool_valid,
             start_goal=jnp.asarray(self.constants.start_goal),
             start_obs=None if start_obs is None else jnp.asarray(start_obs),
