@@ -307,34 +307,45 @@ def test_the_step_reads_its_hyperparameters_from_the_state(medium_maze):
     assert float(metrics["sac/critic_loss"][0]) > 0  # the updates ran, with step size 0
 
 
-def test_archive_rarity_draws_the_episode_that_ended_where_nobody_goes(medium_maze):
-    """Nine episodes end at the start, one at a far corner: with archive_rarity the archive
-    of one episode is that one for (almost) every key; without it, about one key in ten."""
+def _maze_agent_with_episodes(cfg, env, achieved_goal, walk_start):
+    """One seed's TrainState of `cfg` on `env` with n stored episodes whose achieved goals
+    (n, H + 1, 2) and walk starts (n,) are given (everything else zero): (agent, ts)."""
     import jax
 
     from d2c_jax.core import replay
     from d2c_jax.core.rollout import Episodes
 
+    n, horizon = achieved_goal.shape[0], env.horizon
+    episodes = Episodes(
+        obs=np.zeros((n, horizon + 1, env.obs_dim), np.float32),
+        achieved_goal=achieved_goal,
+        action=np.zeros((n, horizon, 2), np.float32),
+        goal=np.zeros((n, horizon, 2), np.float32),
+        success=np.zeros((n, horizon), bool),
+        walk_start=np.asarray(walk_start, np.int32),
+    )
+    agent = agent_lib.Agent(cfg, env)
+    ts = jax.tree.map(lambda x: x[0], agent.init_seeds())
+    return agent, ts.replace(replay=replay.insert_episodes(ts.replay, episodes))
+
+
+def test_archive_rarity_draws_the_episode_that_ended_where_nobody_goes(medium_maze):
+    """Nine episodes end at the start, one at a far corner: with archive_rarity the archive
+    of one episode is that one for (almost) every key; without it, about one key in ten."""
+    import jax
+
     cfg = config.preset("medium_maze", "tiny")
     horizon, n = medium_maze.horizon, 10
     ag = np.zeros((n, horizon + 1, 2), np.float32)
     ag[-1, -1] = [10.0, 10.0]  # the last state of the last episode
-    episodes = Episodes(
-        obs=np.zeros((n, horizon + 1, medium_maze.obs_dim), np.float32),
-        achieved_goal=ag,
-        action=np.zeros((n, horizon, 2), np.float32),
-        goal=np.zeros((n, horizon, 2), np.float32),
-        success=np.zeros((n, horizon), bool),
-        walk_start=np.full(n, horizon, np.int32),
-    )
     picked = {}
     for rarity in (0.0, 2.0):
         cur = dataclasses.replace(
             cfg.curriculum, pool_size=4, archive_size=1, archive_rarity=rarity
         )
-        agent = agent_lib.Agent(dataclasses.replace(cfg, curriculum=cur), medium_maze)
-        ts = jax.tree.map(lambda x: x[0], agent.init_seeds())
-        ts = ts.replace(replay=replay.insert_episodes(ts.replay, episodes))
+        agent, ts = _maze_agent_with_episodes(
+            dataclasses.replace(cfg, curriculum=cur), medium_maze, ag, np.full(n, horizon)
+        )
         pool = jax.jit(jax.vmap(agent._matching_pool, in_axes=(None, 0)))
         slots, _ = pool(ts, jax.random.split(jax.random.key(0), 200))
         picked[rarity] = np.mean(np.asarray(slots)[:, -1] == n - 1)  # the archived row
@@ -346,30 +357,18 @@ def test_pool_phase_keeps_only_the_states_reached_pursuing_the_curriculum_goal(m
     """One episode reaches its goal at step 4 (walk_start 5) and its random walk then goes
     to a far corner: with pool_phase="curriculum_phase" the matching pool holds s_0..s_5
     and then s_5 again; with "all" it holds the corner."""
-    import jax
-
-    from d2c_jax.core import replay
-    from d2c_jax.core.rollout import Episodes
-
     cfg = config.preset("medium_maze", "tiny")
     horizon, n = medium_maze.horizon, cfg.curriculum.pool_size
     ag = np.zeros((n, horizon + 1, 2), np.float32)
     ag[-1, :, 0] = np.arange(horizon + 1)  # the newest episode walks along x
     ag[-1, 6:] = [15.0, 15.0]  # after its success state s_5, the walk's corner
-    episodes = Episodes(
-        obs=np.zeros((n, horizon + 1, medium_maze.obs_dim), np.float32),
-        achieved_goal=ag,
-        action=np.zeros((n, horizon, 2), np.float32),
-        goal=np.zeros((n, horizon, 2), np.float32),
-        success=np.zeros((n, horizon), bool),
-        walk_start=np.where(np.arange(n) == n - 1, 5, horizon).astype(np.int32),
-    )
+    walk_start = np.where(np.arange(n) == n - 1, 5, horizon)
     pools = {}
     for phase in ("all", "curriculum_phase"):
         cur = dataclasses.replace(cfg.curriculum, pool_phase=phase)
-        agent = agent_lib.Agent(dataclasses.replace(cfg, curriculum=cur), medium_maze)
-        ts = jax.tree.map(lambda x: x[0], agent.init_seeds())
-        ts = ts.replace(replay=replay.insert_episodes(ts.replay, episodes))
+        agent, ts = _maze_agent_with_episodes(
+            dataclasses.replace(cfg, curriculum=cur), medium_maze, ag, walk_start
+        )
         pools[phase] = np.asarray(agent.curriculum_inputs(ts).pool_ag[0])  # the newest
     np.testing.assert_array_equal(pools["all"], ag[-1])
     held = pools["curriculum_phase"]
