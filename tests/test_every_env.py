@@ -47,7 +47,7 @@ _FAMILY_ENVS = ["medium_maze"] + [
         ),
     ],
 )
-def test_optional_inputs_train_on_each_family(env_name, flag, value, field, tmp_path):
+def test_default_off_options_train_on_each_family(env_name, flag, value, field, tmp_path):
     """The default-off options through the CLI, one env per family:
     `--sac.relative-goal true` (each family reads phi back from its obs with its own
     `goal_of_obs`, which the env tests check against `achieved_goal`) and

@@ -241,11 +241,9 @@ def hold_after(trajectories: jax.Array, stop: jax.Array) -> jax.Array:
     the curriculum goal up to the one that reached it (`CurriculumConfig.pool_phase`):
     a minimum over steps, or the first-to-last move, then sees only those states.
     """
-    steps = jnp.arange(trajectories.shape[1])
-    held = jnp.minimum(steps[None, :], stop[:, None])  # (P, T)
-    return jnp.take_along_axis(
-        trajectories, held.reshape(held.shape + (1,) * (trajectories.ndim - 2)), axis=1
-    )
+    rows = jnp.arange(trajectories.shape[0])[:, None]  # (P, 1)
+    held = jnp.minimum(jnp.arange(trajectories.shape[1])[None, :], stop[:, None])  # (P, T)
+    return trajectories[rows, held]
 
 
 def recent_episode_slots(state: ReplayState, p: int) -> tuple[jax.Array, jax.Array]:

@@ -15,7 +15,6 @@ evaluates, logs and checkpoints is `d2c_jax.training.loop`.
 
 from __future__ import annotations
 
-import functools
 import math
 from typing import NamedTuple
 
@@ -310,8 +309,10 @@ class Agent:
         pool_ag = ts.replay.achieved_goal[slots]  # (P + A, H + 1, d)
         pool_obs = ts.replay.obs[slots] if cur.needs_pool_obs else None
         if self.cfg.curriculum.pool_phase == "curriculum_phase":
-            hold = functools.partial(replay.hold_after, stop=ts.replay.walk_start[slots])
-            pool_ag, pool_obs = hold(pool_ag), None if pool_obs is None else hold(pool_obs)
+            success_step = ts.replay.walk_start[slots]
+            pool_ag = replay.hold_after(pool_ag, success_step)
+            if pool_obs is not None:
+                pool_obs = replay.hold_after(pool_obs, success_step)
         return interface.CurriculumInputs(
             pool_ag=pool_ag,
             pool_obs=pool_obs,
