@@ -201,6 +201,9 @@ class CurriculumConfig:
     pool_phase: Literal["all", "curriculum_phase"] = "all"
     """Matching candidates from every state of a pool episode, or only from s_0..s_w, the
     states reached pursuing the curriculum goal (w: its success step; `replay.hold_after`)."""
+    pool_walk_steps: int = 0
+    """'curriculum_phase': also keep this many steps of the post-success walk, s_0..s_{w+k},
+    so the candidates reach a little past the states the policy reached on its own."""
     archive_size: int = 0
     """Pool episodes drawn from the whole buffer, beside the P most recent."""
     archive_rarity: float = 0.0

@@ -37,28 +37,31 @@ _FAMILY_ENVS = ["medium_maze"] + [
 
 @pytest.mark.parametrize("env_name", _FAMILY_ENVS)
 @pytest.mark.parametrize(
-    "flag, value, field",
+    "args, fields",
     [
-        ("--sac.relative-goal", "true", ("sac", "relative_goal", True)),
+        (["--sac.relative-goal", "true"], [("sac", "relative_goal", True)]),
         (
-            "--curriculum.pool-phase",
-            "curriculum_phase",
-            ("curriculum", "pool_phase", "curriculum_phase"),
+            ["--curriculum.pool-phase", "curriculum_phase", "--curriculum.pool-walk-steps", "5"],
+            [
+                ("curriculum", "pool_phase", "curriculum_phase"),
+                ("curriculum", "pool_walk_steps", 5),
+            ],
         ),
     ],
+    ids=["relative_goal", "pool_phase"],
 )
-def test_default_off_options_train_on_each_family(env_name, flag, value, field, tmp_path):
+def test_default_off_options_train_on_each_family(env_name, args, fields, tmp_path):
     """The default-off options through the CLI, one env per family:
     `--sac.relative-goal true` (each family reads phi back from its obs with its own
     `goal_of_obs`, which the env tests check against `achieved_goal`) and
     `--curriculum.pool-phase curriculum_phase` (matching candidates held at each pool
-    episode's success state). The Ant and Sawyer runs compile their MJX programs anew
-    (1-2 min each on 2 cores), so they are slow tests."""
+    episode's success state, here 5 walk steps after it). The Ant and Sawyer runs compile
+    their MJX programs anew (1-2 min each on 2 cores), so they are slow tests."""
     from d2c_jax.training import logging as logging_lib
 
-    cfg, _, _ = cli.parse_args(["--env", env_name, "--preset", "tiny", flag, value])
-    section, name, expected = field
-    assert getattr(getattr(cfg, section), name) == expected
+    cfg, _, _ = cli.parse_args(["--env", env_name, "--preset", "tiny", *args])
+    for section, name, expected in fields:
+        assert getattr(getattr(cfg, section), name) == expected
     out = tmp_path / "run"
     assert loop.train(cfg, out, quiet=True) == 0
     last = logging_lib.read_metrics(out / "metrics.jsonl")[-1]

@@ -354,26 +354,30 @@ def test_archive_rarity_draws_the_episode_that_ended_where_nobody_goes(medium_ma
 
 
 def test_pool_phase_keeps_only_the_states_reached_pursuing_the_curriculum_goal(medium_maze):
-    """One episode reaches its goal at step 4 (walk_start 5) and its random walk then goes
-    to a far corner: with pool_phase="curriculum_phase" the matching pool holds s_0..s_5
-    and then s_5 again; with "all" it holds the corner."""
+    """One episode reaches its goal at step 4 (walk_start 5), walks on along x for four
+    steps and then goes to a far corner: with pool_phase="curriculum_phase" the matching
+    pool holds s_0..s_5 and then s_5 again; with 3 walk steps kept, s_0..s_8 and then s_8;
+    with "all" it holds the corner."""
     cfg = config.preset("medium_maze", "tiny")
     horizon, n = medium_maze.horizon, cfg.curriculum.pool_size
     ag = np.zeros((n, horizon + 1, 2), np.float32)
     ag[-1, :, 0] = np.arange(horizon + 1)  # the newest episode walks along x
-    ag[-1, 6:] = [15.0, 15.0]  # after its success state s_5, the walk's corner
+    ag[-1, 10:] = [15.0, 15.0]  # from s_10, the walk's corner
     walk_start = np.where(np.arange(n) == n - 1, 5, horizon)
     pools = {}
-    for phase in ("all", "curriculum_phase"):
-        cur = dataclasses.replace(cfg.curriculum, pool_phase=phase)
+    for phase, walk_steps in (("all", 0), ("curriculum_phase", 0), ("curriculum_phase", 3)):
+        cur = dataclasses.replace(cfg.curriculum, pool_phase=phase, pool_walk_steps=walk_steps)
         agent, ts = _maze_agent_with_episodes(
             dataclasses.replace(cfg, curriculum=cur), medium_maze, ag, walk_start
         )
-        pools[phase] = np.asarray(agent.curriculum_inputs(ts).pool_ag[0])  # the newest
-    np.testing.assert_array_equal(pools["all"], ag[-1])
-    held = pools["curriculum_phase"]
-    np.testing.assert_array_equal(held[:6], ag[-1, :6])
-    np.testing.assert_array_equal(held[6:], np.broadcast_to([5.0, 0.0], (horizon - 5, 2)))
+        pools[phase, walk_steps] = np.asarray(agent.curriculum_inputs(ts).pool_ag[0])
+    np.testing.assert_array_equal(pools["all", 0], ag[-1])
+    for last_kept in (5, 8):  # walk_start + walk steps kept
+        held = pools["curriculum_phase", last_kept - 5]
+        np.testing.assert_array_equal(held[: last_kept + 1], ag[-1, : last_kept + 1])
+        np.testing.assert_array_equal(
+            held[last_kept + 1 :], np.broadcast_to([last_kept, 0.0], (horizon - last_kept, 2))
+        )
 
 
 def test_sigterm_checkpoints_and_resume_continues(tmp_path):

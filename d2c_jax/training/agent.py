@@ -309,10 +309,10 @@ class Agent:
         pool_ag = ts.replay.achieved_goal[slots]  # (P + A, H + 1, d)
         pool_obs = ts.replay.obs[slots] if cur.needs_pool_obs else None
         if self.cfg.curriculum.pool_phase == "curriculum_phase":
-            success_step = ts.replay.walk_start[slots]
-            pool_ag = replay.hold_after(pool_ag, success_step)
+            last_kept = ts.replay.walk_start[slots] + self.cfg.curriculum.pool_walk_steps
+            pool_ag = replay.hold_after(pool_ag, last_kept)
             if pool_obs is not None:
-                pool_obs = replay.hold_after(pool_obs, success_step)
+                pool_obs = replay.hold_after(pool_obs, last_kept)
         return interface.CurriculumInputs(
             pool_ag=pool_ag,
             pool_obs=pool_obs,

@@ -221,6 +221,7 @@ _RANGE_EXCEPTIONS: dict[str, Range] = {
     # Counts where 0 means "off".
     "curriculum.post_success_switch_every": Interval(0, integer=True),
     "curriculum.archive_size": Interval(0, integer=True),
+    "curriculum.pool_walk_steps": Interval(0, integer=True),
     "curriculum.archive_rarity": Interval(0),
     # ALP-GMM fits mixtures of 2 or more components on alp_fit_rate rows.
     "teachers.alp_fit_rate": Interval(2, integer=True),
