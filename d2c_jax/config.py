@@ -105,6 +105,11 @@ class SACConfig:
     relative_goal: bool = False
     """Actor and critic see the goal as its offset g - phi(s) from the achieved goal, in
     normalised units, instead of g itself (HIRO's low-level input; off: SPEC §4's input)."""
+    actor_mean_reg: float = 0.0
+    """Weight lambda of lambda * sum over action dims of u^2, the actor's pre-tanh mean,
+    added to J_pi (the Gaussian-mean regulariser of the original SAC code, 1e-3 there; off:
+    SPEC §4's J_pi). It keeps the mean where tanh still has a gradient and noise still
+    moves the action."""
     log_std_min: float = -10.0
     """Lower end of the smooth log-std squashing."""
     log_std_max: float = 2.0

@@ -47,15 +47,17 @@ _FAMILY_ENVS = ["medium_maze"] + [
                 ("curriculum", "pool_walk_steps", 5),
             ],
         ),
+        (["--sac.actor-mean-reg", "0.01"], [("sac", "actor_mean_reg", 0.01)]),
     ],
-    ids=["relative_goal", "pool_phase"],
+    ids=["relative_goal", "pool_phase", "actor_mean_reg"],
 )
 def test_default_off_options_train_on_each_family(env_name, args, fields, tmp_path):
     """The default-off options through the CLI, one env per family:
     `--sac.relative-goal true` (each family reads phi back from its obs with its own
     `goal_of_obs`, which the env tests check against `achieved_goal`) and
     `--curriculum.pool-phase curriculum_phase` (matching candidates held at each pool
-    episode's success state, here 5 walk steps after it). The Ant and Sawyer runs compile
+    episode's success state, here 5 walk steps after it) and `--sac.actor-mean-reg`
+    (the pre-tanh mean's penalty in J_pi). The Ant and Sawyer runs compile
     their MJX programs anew (1-2 min each on 2 cores), so they are slow tests."""
     from d2c_jax.training import logging as logging_lib
 

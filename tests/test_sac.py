@@ -187,6 +187,32 @@ def test_probe_two_steps_with_bounded_critic():
 # --- losses -----------------------------------------------------------------------------
 
 
+def test_actor_mean_reg_holds_the_mean_where_its_pull_balances_the_critics():
+    """r = 1 - (a - 1)^2 at s1, terminal: the best action is a -> 1, so plain SAC drives the
+    pre-tanh mean u on toward infinity (tanh u -> 1). With lambda ||u||^2 added to J_pi the
+    actor stops where dQ/du = 2 (1 - tanh u)(1 - tanh^2 u) equals 2 lambda u."""
+    from scipy.optimize import brentq
+
+    reg = 0.1
+    u_star = brentq(lambda u: (1 - np.tanh(u)) * (1 - np.tanh(u) ** 2) - reg * u, 0.0, 5.0)
+    edge = Probe(first=0.0, c=1.0, k=1.0, a_star=1.0)
+    _, plain = probe(edge)
+    _, held = probe(edge, dataclasses.replace(PROBE_CFG, actor_mean_reg=reg))
+    assert plain[1] > 0.95
+    np.testing.assert_allclose(held[1], np.tanh(u_star), atol=0.05)  # 0.76
+
+
+def test_actor_mean_reg_adds_lambda_times_the_squared_pre_tanh_mean(small):
+    feats = networks.actor_input(small.env, small.batches[0].obs, small.batches[0].goal)
+    args = (small.state.actor_params, small.nets, small.state.critic_params, 0.3, feats)
+    key = jax.random.key(4)
+    plain, logp = sac.actor_loss(*args, key)
+    held, logp_held = sac.actor_loss(*args, key, 0.25)
+    mean, _ = small.nets.actor.apply(small.state.actor_params, feats)
+    np.testing.assert_allclose(held - plain, 0.25 * np.mean(np.sum(mean**2, -1)), rtol=1e-5)
+    np.testing.assert_array_equal(logp, logp_held)
+
+
 def test_soft_td_target_and_critic_loss_by_hand():
     env = SmallEnv()
     nets, opt, hp = parts(CFG, env)

@@ -177,8 +177,11 @@ def actor_loss(
     alpha: jax.Array,
     feats: jax.Array,
     key: jax.Array,
+    mean_reg: float = 0.0,
 ) -> tuple[jax.Array, jax.Array]:
-    """J_pi (Eq. 7, reparameterised): mean_B [alpha log pi(a~|s) - min_i Q_i(s, a~)].
+    """J_pi (Eq. 7, reparameterised): mean_B [alpha log pi(a~|s) - min_i Q_i(s, a~)], plus
+    mean_B mean_reg * ||u||^2 on the pre-tanh mean u (B, |A|) when mean_reg > 0
+    (`SACConfig.actor_mean_reg`).
 
     Returns:
       loss () and log pi(a~|s) (B,).
@@ -186,7 +189,13 @@ def actor_loss(
     mean, log_std = nets.actor.apply(actor_params, feats)
     action, log_prob = networks.squashed_gaussian_sample(mean, log_std, key)
     q = jnp.min(nets.critic.apply(critic_params, feats, action), axis=0)  # (B,)
-    return jnp.mean(alpha * log_prob - q), log_prob
+    loss = alpha * log_prob - q
+    if mean_reg > 0:  # static: the default program is unchanged
+        # Where tanh saturates, dQ/du and the noise's effect on the action vanish, so
+        # nothing in J_pi pulls u back; this term does (measured on the Ant's frozen
+        # goals: |u| up to 12, docs/DEVIATIONS.md).
+        loss = loss + mean_reg * jnp.sum(jnp.square(mean), axis=-1)
+    return jnp.mean(loss), log_prob
 
 
 def alpha_loss(log_alpha: jax.Array, log_prob: jax.Array, entropy_target: float) -> jax.Array:
@@ -231,7 +240,7 @@ def _actor_step(cfg: SACConfig, nets, opt, hp, state: SACState, feats, action_di
     alpha = jnp.exp(state.log_alpha)
     grad_fn = jax.value_and_grad(actor_loss, has_aux=True)
     (loss, log_prob), grads = grad_fn(
-        state.actor_params, nets, state.critic_params, alpha, feats, key
+        state.actor_params, nets, state.critic_params, alpha, feats, key, cfg.actor_mean_reg
     )
     actor_params, actor_opt = optim.adam_step(
         opt.actor, hp.actor_lr, grads, state.actor_opt, state.actor_params

@@ -201,6 +201,8 @@ _RANGE_EXCEPTIONS: dict[str, Range] = {
     "sac.tau": Interval(0, 1, lo_open=True),
     # log alpha = log(init_alpha).
     "sac.init_alpha": Interval(0, lo_open=True),
+    # A penalty weight (0: off).
+    "sac.actor_mean_reg": Interval(0),
     # An entropy (any sign), or None for -action_dim.
     "sac.target_entropy": OrNone(Interval()),
     # Ends of the log-std squashing (any sign; min < max is a cross-field check).
