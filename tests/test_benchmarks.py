@@ -361,3 +361,51 @@ def test_goal_probe_trains_and_evaluates_on_the_moved_points(tmp_path):
     assert last["curriculum/distance"] < 6.0
     saved = json.loads((out / goal_probe.PROBE_FILE).read_text())
     assert saved == {"goal_points": [[4.0, 0.0], [-4.0, 0.0]]}
+
+
+def test_actor_probe_action_stats_by_hand():
+    from benchmarks import actor_probe
+
+    # 2 episodes, 3 steps, 2 components: episode 0 holds (1, 0); episode 1 varies.
+    actions = np.array([[[1.0, 0.0]] * 3, [[0.0, -0.96], [0.0, 0.0], [0.0, 0.96]]])
+    stats = actor_probe.action_stats(actions)
+    assert stats.saturated == 5 / 12  # the three 1.0s and both +-0.96s
+    np.testing.assert_allclose(stats.std_over_time, np.sqrt(2 * 0.96**2 / 3) / 4)
+
+
+def test_actor_probe_of_a_policy_that_runs_right(medium_maze):
+    """Full speed along +x (as in the reach-map test): it reaches (8, 0) and not (0, 8),
+    runs 17.6 - x_0 units to the wall's clearance, and holds a saturated first component
+    for the whole episode."""
+    import jax
+    import jax.numpy as jnp
+
+    from benchmarks import actor_probe
+
+    go_right = lambda obs, goal, key: jnp.array([1.0, -obs[2]])  # noqa: E731
+    u = lambda obs, goal: jnp.array([3.0, -4.0])  # noqa: E731
+    goals = np.array([[8.0, 0.0], [0.0, 8.0]])
+    rows = actor_probe.probe(medium_maze, go_right, u, goals, 2, jax.random.key(0))
+    assert [r.reach for r in rows] == [1.0, 0.0]
+    for r in rows:
+        assert 17.5 <= r.path <= 17.7  # the reset's x lies in [-0.1, 0.1]
+        assert r.stats.saturated == 0.5
+        assert r.stats.std_over_time < 0.01  # only the first step turns, by at most 0.1
+        assert (r.u_max, r.u_mean) == (4.0, 3.5)
+    assert len(actor_probe.format_rows(rows)) == 3
+
+
+@pytest.mark.parametrize(
+    "argv, message",
+    [
+        (["/nonexistent", "1,2"], "not a run directory"),
+        (["/nonexistent", "1,a"], "goal points must be numbers"),
+        (["/nonexistent", "1,2", "--episodes", "0"], "--episodes must be >= 1"),
+    ],
+)
+def test_actor_probe_refuses_bad_input(argv, message, capsys):
+    from benchmarks import actor_probe
+
+    assert actor_probe.main(argv) == 2
+    first = capsys.readouterr().err.splitlines()[0]
+    assert first.startswith("error: ") and message in first

@@ -1,0 +1,163 @@
+"""What a run's deterministic actor does for chosen goals: does it move, or hold one action?
+
+    python -m benchmarks.actor_probe RUN_DIR [--episodes 8] [--seed-index 0] \
+        -- "X,Y[,Z];X,Y[,Z]..."
+
+(the `--` lets the points start with a minus sign).
+
+Per goal, over N deterministic episodes from the start state with its reset noise (SPEC
+§7's evaluation episodes, no goal switching), one row:
+  reach       share of the episodes that come within the success radius of the goal;
+  path        length of phi's path over the episode (mean);
+  saturated   share of action components with |a| > 0.95;
+  std/t       each action component's standard deviation over the episode, averaged: near
+              0 when the actor holds one action for the whole episode;
+  |u| s_0     largest and mean |u| of the actor's pre-tanh mean at the first state.
+An ant that stands still for a goal holds nearly one action (std/t near 0); where that
+action is saturated, tanh leaves neither the critic's gradient nor the exploration noise
+any hold on it (benchmarks/RESULTS.md, stop 62).
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from collections.abc import Callable
+from typing import NamedTuple
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+SATURATED = 0.95
+"""|a| above which an action component counts as saturated (tanh(1.83))."""
+
+
+class ActionStats(NamedTuple):
+    """Of one goal's episodes: shares and means over episodes, steps and components."""
+
+    saturated: float
+    std_over_time: float
+
+
+def action_stats(actions: np.ndarray) -> ActionStats:
+    """(n, T, |A|) actions of n episodes -> the share of components with |a| > SATURATED,
+    and each component's standard deviation over the T steps, averaged over n and |A|."""
+    actions = np.asarray(actions, np.float64)
+    return ActionStats(
+        saturated=float(np.mean(np.abs(actions) > SATURATED)),
+        std_over_time=float(np.mean(actions.std(axis=1))),
+    )
+
+
+class GoalRow(NamedTuple):
+    goal: np.ndarray  # (goal_dim,)
+    reach: float
+    path: float
+    stats: ActionStats
+    u_max: float
+    u_mean: float
+
+
+def probe(
+    env,
+    policy,
+    pre_tanh_mean: Callable[[jax.Array, jax.Array], jax.Array],
+    goals: np.ndarray,
+    episodes: int,
+    key,
+) -> list[GoalRow]:
+    """One `GoalRow` per goal of `goals` (n, goal_dim).
+
+    Args:
+      env: the environment; policy: a `rollout.Policy` (pass the deterministic actor).
+      pre_tanh_mean: (obs (obs_dim,), goal (goal_dim,)) -> the actor's u (|A|,).
+      episodes: episodes per goal; key: PRNG key (reset noise).
+    """
+    from d2c_jax.core import rollout
+
+    goals = np.asarray(goals, np.float32)
+    repeated = np.repeat(goals, episodes, axis=0)
+
+    def play(g, k):
+        record = lambda before, action, after: (action, after.success, after.achieved_goal)  # noqa: E731
+        first, (action, success, achieved) = rollout.run(env, policy, g, k, record=record)
+        path = jnp.concatenate([first.achieved_goal[:, None], achieved], axis=1)
+        length = jnp.linalg.norm(jnp.diff(path, axis=1), axis=-1).sum(axis=1)
+        u = jax.vmap(pre_tanh_mean)(first.obs, g)
+        return action, success.any(axis=1), length, u
+
+    action, hit, length, u = (np.asarray(x) for x in jax.jit(play)(repeated, key))
+    rows = []
+    for i, goal in enumerate(goals):
+        mine = slice(i * episodes, (i + 1) * episodes)
+        rows.append(
+            GoalRow(
+                goal=goal,
+                reach=float(hit[mine].mean()),
+                path=float(length[mine].mean()),
+                stats=action_stats(action[mine]),
+                u_max=float(np.abs(u[mine]).max()),
+                u_mean=float(np.abs(u[mine]).mean()),
+            )
+        )
+    return rows
+
+
+def format_rows(rows: list[GoalRow]) -> list[str]:
+    """A header and one line per goal."""
+    lines = ["goal                  reach   path  saturated  std/t  |u| s_0 max / mean"]
+    for r in rows:
+        goal = ",".join(f"{v:g}" for v in r.goal)
+        lines.append(
+            f"{goal:20s}  {r.reach:5.2f}  {r.path:5.2f}  {r.stats.saturated:9.2f}"
+            f"  {r.stats.std_over_time:5.2f}  {r.u_max:6.2f} / {r.u_mean:.2f}"
+        )
+    return lines
+
+
+def main(argv=None) -> int:
+    from benchmarks import goal_probe
+    from d2c_jax.core import networks
+    from d2c_jax.training import agent as agent_lib
+    from d2c_jax.training import runs
+
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("run")
+    parser.add_argument("goals", help='goal points as "x,y;x,y" (the env\'s goal space)')
+    parser.add_argument("--episodes", type=int, default=8)
+    parser.add_argument("--seed-index", type=int, default=0)
+    args = parser.parse_args(argv)
+    try:
+        if args.episodes < 1:
+            raise runs.RunError(f"--episodes must be >= 1, got {args.episodes}", 2)
+        try:
+            goals = goal_probe.parse_points(args.goals)
+        except ValueError as err:
+            raise runs.RunError(str(err), 2) from None
+        cfg, env, ts = runs.load_one_run(args.run, args.seed_index)
+        if goals.shape[1] != env.goal_dim:
+            raise runs.RunError(
+                f"goal points must have {env.goal_dim} coordinates for {cfg.env}, "
+                f"got {goals.shape[1]}",
+                2,
+            )
+    except runs.RunError as err:
+        print(f"error: {err}", file=sys.stderr)
+        return 2
+    agent = agent_lib.Agent(cfg, env)
+    nets = agent.sac_nets
+
+    def pre_tanh_mean(obs, goal):
+        feats = networks.actor_input(env, obs, goal, nets.relative_goal)
+        return nets.actor.apply(ts.sac.actor_params, feats)[0]
+
+    policy = agent.policy(ts.sac, deterministic=True)
+    rows = probe(env, policy, pre_tanh_mean, goals, args.episodes, jax.random.key(1))
+    print(f"{args.run}: {int(ts.env_steps):,} env steps, {args.episodes} episodes per goal")
+    print("\n".join(format_rows(rows)))
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
