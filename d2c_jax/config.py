@@ -108,8 +108,8 @@ class SACConfig:
     actor_mean_reg: float = 0.0
     """Weight lambda of lambda * sum over action dims of u^2, the actor's pre-tanh mean,
     added to J_pi (the Gaussian-mean regulariser of the original SAC code, 1e-3 there; off:
-    SPEC §4's J_pi). It keeps the mean where tanh still has a gradient and noise still
-    moves the action."""
+    SPEC §4's J_pi). Where tanh saturates, neither the critic's gradient nor the noise
+    reaches u any more; this term still pulls it back."""
     log_std_min: float = -10.0
     """Lower end of the smooth log-std squashing."""
     log_std_max: float = 2.0
@@ -207,8 +207,9 @@ class CurriculumConfig:
     """Matching candidates from every state of a pool episode, or only from s_0..s_w, the
     states reached pursuing the curriculum goal (w: its success step; `replay.hold_after`)."""
     pool_walk_steps: int = 0
-    """'curriculum_phase': also keep this many steps of the post-success walk, s_0..s_{w+k},
-    so the candidates reach a little past the states the policy reached on its own."""
+    """With pool_phase 'curriculum_phase' (required when > 0): also keep this many steps of
+    the post-success walk, s_0..s_{w+k}, so the candidates reach a little past the states
+    the policy reached on its own."""
     archive_size: int = 0
     """Pool episodes drawn from the whole buffer, beside the P most recent."""
     archive_rarity: float = 0.0

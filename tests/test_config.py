@@ -276,8 +276,13 @@ def test_cross_field_constraints():
         "--classifier.marginal-group": replace_at(BASE, "classifier.marginal_group", 10**6),
         # The tiny buffer (20,000 steps of 100) holds 200 episodes; the archive draws from them.
         "--curriculum.archive-size": replace_at(BASE, "curriculum.archive_size", 201),
+        # Walk steps kept after the success step need the pool cut there.
+        "--curriculum.pool-walk-steps": replace_at(BASE, "curriculum.pool_walk_steps", 5),
     }
     assert validation.validate(replace_at(BASE, "curriculum.archive_size", 200)) is None
+    walk = replace_at(BASE, "curriculum.pool_walk_steps", 5)
+    cut = replace_at(walk, "curriculum.pool_phase", "curriculum_phase")
+    assert validation.validate(cut) is None
     for name, cfg in bad.items():
         message = validation.validate(cfg)
         assert message is not None and message.startswith(f"{name} must be "), message

@@ -369,6 +369,12 @@ def cross_field_problem(cfg: TrainConfig) -> str | None:
             f"buffer's episode slots: --replay.capacity {cfg.replay.capacity} // {horizon} "
             f"steps), got {cur.archive_size}"
         )
+    # Walk steps are kept only where the pool is cut at the success step.
+    if cur.pool_walk_steps > 0 and cur.pool_phase != "curriculum_phase":
+        return (
+            "--curriculum.pool-walk-steps must be 0 unless --curriculum.pool-phase is "
+            f"curriculum_phase (it is {cur.pool_phase}), got {cur.pool_walk_steps}"
+        )
     return None
 
 
