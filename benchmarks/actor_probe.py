@@ -118,8 +118,7 @@ def format_rows(rows: list[GoalRow]) -> list[str]:
 
 def main(argv=None) -> int:
     from benchmarks import goal_probe
-    from d2c_jax.core import networks
-    from d2c_jax.training import agent as agent_lib
+    from d2c_jax.core import networks, sac
     from d2c_jax.training import runs
 
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
@@ -145,14 +144,13 @@ def main(argv=None) -> int:
     except runs.RunError as err:
         print(f"error: {err}", file=sys.stderr)
         return 2
-    agent = agent_lib.Agent(cfg, env)
-    nets = agent.sac_nets
+    nets = networks.make_networks(cfg.sac, env)
 
     def pre_tanh_mean(obs, goal):
         feats = networks.actor_input(env, obs, goal, nets.relative_goal)
         return nets.actor.apply(ts.sac.actor_params, feats)[0]
 
-    policy = agent.policy(ts.sac, deterministic=True)
+    policy = sac.make_policy(nets, ts.sac, env, deterministic=True)
     rows = probe(env, policy, pre_tanh_mean, goals, args.episodes, jax.random.key(1))
     print(f"{args.run}: {int(ts.env_steps):,} env steps, {args.episodes} episodes per goal")
     print("\n".join(format_rows(rows)))
