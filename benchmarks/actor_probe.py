@@ -8,6 +8,8 @@
 Per goal, over N deterministic episodes from the start state with its reset noise (SPEC
 §7's evaluation episodes, no goal switching), one row:
   reach       share of the episodes that come within the success radius of the goal;
+  steps       env steps to the first success, mean over the episodes that reach it (nan
+              if none does): with the path, how fast the policy walks;
   path        length of phi's path over the episode (mean);
   saturated   share of action components with |a| > 0.95;
   std/t       each action component's standard deviation over the episode, averaged: near
@@ -53,6 +55,8 @@ def action_stats(actions: np.ndarray) -> ActionStats:
 class GoalRow(NamedTuple):
     goal: np.ndarray  # (goal_dim,)
     reach: float
+    steps: float
+    """Env steps to the first success (1-based), mean over the reaching episodes; nan if none."""
     path: float
     stats: ActionStats
     u_max: float
@@ -85,9 +89,11 @@ def probe(
         path = jnp.concatenate([first.achieved_goal[:, None], achieved], axis=1)
         length = jnp.linalg.norm(jnp.diff(path, axis=1), axis=-1).sum(axis=1)
         u = jax.vmap(pre_tanh_mean)(first.obs, g)
-        return action, success.any(axis=1), length, u
+        return action, success, length, u
 
-    action, hit, length, u = (np.asarray(x) for x in jax.jit(play)(repeated, key))
+    action, success, length, u = (np.asarray(x) for x in jax.jit(play)(repeated, key))
+    hit = success.any(axis=1)
+    first_step = np.argmax(success, axis=1) + 1  # (n·episodes,) 1-based; 1 where never
     rows = []
     for i, goal in enumerate(goals):
         mine = slice(i * episodes, (i + 1) * episodes)
@@ -95,6 +101,7 @@ def probe(
             GoalRow(
                 goal=goal,
                 reach=float(hit[mine].mean()),
+                steps=float(first_step[mine][hit[mine]].mean()) if hit[mine].any() else np.nan,
                 path=float(length[mine].mean()),
                 stats=action_stats(action[mine]),
                 u_max=float(np.abs(u[mine]).max()),
@@ -106,11 +113,11 @@ def probe(
 
 def format_rows(rows: list[GoalRow]) -> list[str]:
     """A header and one line per goal."""
-    lines = ["goal                  reach   path  saturated  std/t  |u| s_0 max / mean"]
+    lines = ["goal                  reach  steps   path  saturated  std/t  |u| s_0 max / mean"]
     for r in rows:
         goal = ",".join(f"{v:g}" for v in r.goal)
         lines.append(
-            f"{goal:20s}  {r.reach:5.2f}  {r.path:5.2f}  {r.stats.saturated:9.2f}"
+            f"{goal:20s}  {r.reach:5.2f}  {r.steps:5.0f}  {r.path:5.2f}  {r.stats.saturated:9.2f}"
             f"  {r.stats.std_over_time:5.2f}  {r.u_max:6.2f} / {r.u_mean:.2f}"
         )
     return lines

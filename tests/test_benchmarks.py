@@ -374,8 +374,8 @@ def test_actor_probe_action_stats_by_hand():
 
 
 def test_actor_probe_of_a_policy_that_runs_right(medium_maze):
-    """Full speed along +x (as in the reach-map test): it reaches (8, 0) and not (0, 8),
-    runs 17.6 - x_0 units to the wall's clearance, and holds a saturated first component
+    """Full speed along +x (as in the reach-map test): it reaches (8, 0) at step 8 and not
+    (0, 8), runs 17.6 - x_0 units to the wall's clearance, and holds a saturated first component
     for the whole episode."""
     import jax
     import jax.numpy as jnp
@@ -387,6 +387,8 @@ def test_actor_probe_of_a_policy_that_runs_right(medium_maze):
     goals = np.array([[8.0, 0.0], [0.0, 8.0]])
     rows = actor_probe.probe(medium_maze, go_right, u, goals, 2, jax.random.key(0))
     assert [r.reach for r in rows] == [1.0, 0.0]
+    # x_0 + k >= 7.5 first at k = 8 for x_0 in [-0.1, 0.1]; never for the other goal.
+    assert rows[0].steps == 8 and np.isnan(rows[1].steps)
     for r in rows:
         assert 17.5 <= r.path <= 17.7  # the reset's x lies in [-0.1, 0.1]
         assert r.stats.saturated == 0.5
