@@ -128,13 +128,17 @@ class ReplayConfig:
 
 @dataclasses.dataclass(frozen=True)
 class HERConfig:
-    """Hindsight relabelling, 'future' strategy (SPEC §4)."""
+    """Hindsight relabelling: the 'future' strategy (SPEC §4), optionally with 'random'."""
 
     relabel_prob: float = 0.8
     """Probability that a sampled transition's goal is replaced by a future achieved goal."""
     min_future_radii: float = 0.0
     """A future goal within this many success radii of phi(s_t), an outcome already reached
     at s_t, is not used: the transition keeps its own goal. 0: every one is (SPEC §4)."""
+    random_prob: float = 0.0
+    """Probability that a sampled transition's goal is instead the achieved goal of a state
+    drawn uniformly from the whole buffer (HER's "random" strategy); relabel_prob +
+    random_prob <= 1, the rest keep their own goal. 0: off, future-only (SPEC §4)."""
 
 
 @dataclasses.dataclass(frozen=True)

@@ -278,7 +278,10 @@ def test_cross_field_constraints():
         "--curriculum.archive-size": replace_at(BASE, "curriculum.archive_size", 201),
         # Walk steps kept after the success step need the pool cut there.
         "--curriculum.pool-walk-steps": replace_at(BASE, "curriculum.pool_walk_steps", 5),
+        # Future, random and own goals share one batch.
+        "--her.relabel-prob + --her.random-prob": replace_at(BASE, "her.random_prob", 0.3),
     }
+    assert validation.validate(replace_at(BASE, "her.random_prob", 0.2)) is None
     assert validation.validate(replace_at(BASE, "curriculum.archive_size", 200)) is None
     walk = replace_at(BASE, "curriculum.pool_walk_steps", 5)
     cut = replace_at(walk, "curriculum.pool_phase", "curriculum_phase")

@@ -48,8 +48,12 @@ _FAMILY_ENVS = ["medium_maze"] + [
             ],
         ),
         (["--sac.actor-mean-reg", "0.01"], [("sac", "actor_mean_reg", 0.01)]),
+        (
+            ["--her.relabel-prob", "0.5", "--her.random-prob", "0.3"],
+            [("her", "relabel_prob", 0.5), ("her", "random_prob", 0.3)],
+        ),
     ],
-    ids=["relative_goal", "pool_phase", "actor_mean_reg"],
+    ids=["relative_goal", "pool_phase", "actor_mean_reg", "her_random"],
 )
 def test_default_off_options_train_on_each_family(env_name, args, fields, tmp_path):
     """The default-off options through the CLI, one env per family:
@@ -57,7 +61,8 @@ def test_default_off_options_train_on_each_family(env_name, args, fields, tmp_pa
     `goal_of_obs`, which the env tests check against `achieved_goal`) and
     `--curriculum.pool-phase curriculum_phase` (matching candidates held at each pool
     episode's success state, here 5 walk steps after it) and `--sac.actor-mean-reg`
-    (the pre-tanh mean's penalty in J_pi). The Ant and Sawyer runs compile
+    (the pre-tanh mean's penalty in J_pi) and `--her.random-prob` (HER's "random" goals
+    from the whole buffer). The Ant and Sawyer runs compile
     their MJX programs anew (1-2 min each on 2 cores), so they are slow tests."""
     from d2c_jax.training import logging as logging_lib
 

@@ -1,4 +1,5 @@
-"""HER 'future' relabelling: same episode, later steps only, ~80 %, rewards recomputed."""
+"""HER 'future' relabelling: same episode, later steps only, ~80 %, rewards recomputed;
+the optional 'random' strategy's share and source."""
 
 from typing import NamedTuple
 
@@ -105,6 +106,39 @@ def test_future_goals_already_reached_at_s_t_are_not_used():
     assert np.all(ahead[relabelled] >= 3)
     for step, share in enumerate([3 / 5, 2 / 4, 1 / 3, 0.0, 0.0]):
         np.testing.assert_allclose(np.mean(relabelled[t == step]), share, atol=0.02)
+
+
+def test_random_strategy_takes_its_share_from_the_whole_buffer():
+    """relabel_prob 0.5 and random_prob 0.3 on three episodes of ids 3, 4, 5: 20% keep the
+    stored goal; a random goal is phi of a state uniform over the 3 x (H + 1) stored ones,
+    so by hand 0.3 * 2/3 = 0.2 of the batch gets another episode's state (future goals
+    never do) and 0.3 * 1/6 = 0.05 a step-0 state (future goals start at t + 1)."""
+    tr = her.sample_relabelled(
+        0.5, buffer_with([3, 4, 5]), 40_000, jax.random.key(3), 0.0, 0.0, 0.3
+    )
+    goal, obs = np.asarray(tr.goal), np.asarray(tr.obs)
+    kept = goal[:, 0] == STORED_GOAL
+    np.testing.assert_allclose(kept.mean(), 0.2, atol=0.01)  # std 0.002
+    other_episode = ~kept & (goal[:, 1] != obs[:, 1])
+    np.testing.assert_allclose(other_episode.mean(), 0.2, atol=0.01)
+    step_zero = ~kept & (goal[:, 0] % 100 == 0)
+    np.testing.assert_allclose(step_zero.mean(), 0.05, atol=0.006)
+    # Every stored state can be drawn, from every episode.
+    assert {(int(g[1]), int(g[0]) % 100) for g in goal[~kept]} == {
+        (e, t) for e in (3, 4, 5) for t in range(H + 1)
+    }
+
+
+def test_random_strategy_off_is_the_future_only_program():
+    state, key = buffer_with([3, 4, 5]), jax.random.key(4)
+    default = her.sample_relabelled(0.8, state, 1000, key)
+    off = her.sample_relabelled(0.8, state, 1000, key, 0.0, 0.0, 0.0)
+    np.testing.assert_array_equal(default.goal, off.goal)
+    both = her.sample_relabelled(0.8, state, 1000, key, 0.0, 0.0, 0.2)
+    # The future coin is the same draw: only transitions it left alone change.
+    future = np.asarray(default.goal[:, 0] != STORED_GOAL)
+    np.testing.assert_array_equal(both.goal[future], default.goal[future])
+    assert np.all(np.asarray(both.goal[:, 0]) != STORED_GOAL)  # 0.8 + 0.2: none kept
 
 
 class RadiusEnv:

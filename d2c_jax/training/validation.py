@@ -212,6 +212,7 @@ _RANGE_EXCEPTIONS: dict[str, Range] = {
     "her.relabel_prob": Interval(0, 1),
     # A distance in success radii.
     "her.min_future_radii": Interval(0),
+    "her.random_prob": Interval(0, 1),
     "replay.walk_fraction": Interval(0, 1),
     "curriculum.post_success_threshold": Interval(0, 1),
     "curriculum.pool_tail_fraction": Interval(0, 1),
@@ -368,6 +369,12 @@ def cross_field_problem(cfg: TrainConfig) -> str | None:
             f"--curriculum.archive-size must be <= {cfg.replay.capacity // horizon} (the "
             f"buffer's episode slots: --replay.capacity {cfg.replay.capacity} // {horizon} "
             f"steps), got {cur.archive_size}"
+        )
+    # The two relabelling coins share one batch: future, random, own goal.
+    if cfg.her.relabel_prob + cfg.her.random_prob > 1 + 1e-9:  # 0.8 + 0.2 in floats
+        return (
+            "--her.relabel-prob + --her.random-prob must be <= 1, got "
+            f"{cfg.her.relabel_prob} + {cfg.her.random_prob}"
         )
     # Walk steps are kept only where the pool is cut at the success step.
     if cur.pool_walk_steps > 0 and cur.pool_phase != "curriculum_phase":
