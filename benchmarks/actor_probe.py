@@ -22,7 +22,6 @@ any hold on it (benchmarks/RESULTS.md, stop 62).
 
 from __future__ import annotations
 
-import argparse
 import sys
 from collections.abc import Callable
 from typing import NamedTuple
@@ -124,19 +123,15 @@ def format_rows(rows: list[GoalRow]) -> list[str]:
 
 
 def main(argv=None) -> int:
-    from benchmarks import goal_probe
+    from benchmarks import goal_probe, run_args
     from d2c_jax.core import networks, sac
     from d2c_jax.training import runs
 
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("run")
+    parser = run_args.probe_parser(__doc__, episodes=8)
     parser.add_argument("goals", help='goal points as "x,y;x,y" (the env\'s goal space)')
-    parser.add_argument("--episodes", type=int, default=8)
-    parser.add_argument("--seed-index", type=int, default=0)
     args = parser.parse_args(argv)
     try:
-        if args.episodes < 1:
-            raise runs.RunError(f"--episodes must be >= 1, got {args.episodes}", 2)
+        run_args.check_episodes(args.episodes)
         try:
             goals = goal_probe.parse_points(args.goals)
         except ValueError as err:

@@ -26,13 +26,13 @@ below the return's floor").
 
 from __future__ import annotations
 
-import argparse
 import sys
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 
+from benchmarks import run_args
 from d2c_jax.core import replay, rollout, sac
 from d2c_jax.training import agent as agent_lib
 from d2c_jax.training import runs
@@ -102,15 +102,11 @@ def report(cfg, env, ts, episodes: int) -> list[str]:
 
 
 def main(argv=None) -> int:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("run")
+    parser = run_args.probe_parser(__doc__, episodes=200)
     parser.add_argument("--step", type=int, default=None, help="checkpoint iteration")
-    parser.add_argument("--episodes", type=int, default=200)
-    parser.add_argument("--seed-index", type=int, default=0)
     args = parser.parse_args(argv)
     try:
-        if args.episodes < 1:
-            raise runs.RunError(f"--episodes must be >= 1, got {args.episodes}", 2)
+        run_args.check_episodes(args.episodes)
         cfg, env, ts = runs.load_one_run(args.run, args.seed_index, args.step)
     except runs.RunError as err:
         print(f"error: {err}", file=sys.stderr)

@@ -11,13 +11,13 @@ its distance from g. A reward that pays for hovering near the goal shows as a hi
 
 from __future__ import annotations
 
-import argparse
 import sys
 
 import jax
 import jax.numpy as jnp
 
 import envs
+from benchmarks import run_args
 from d2c_jax.core import replay
 from d2c_jax.curricula import classifier
 from d2c_jax.training import runs
@@ -51,10 +51,8 @@ def probe(cfg, env, ts, points: int, key) -> list[str]:
 
 
 def main(argv=None) -> int:
-    parser = argparse.ArgumentParser(prog="benchmarks.reward_probe", description=__doc__)
-    parser.add_argument("run_dir")
+    parser = run_args.probe_parser(__doc__, run_dest="run_dir")
     parser.add_argument("--points", type=int, default=4000)
-    parser.add_argument("--seed-index", type=int, default=0)
     args = parser.parse_args(argv)
     try:
         cfg, env, ts = runs.load_one_run(args.run_dir, args.seed_index)

@@ -26,7 +26,6 @@ policy can reach on demand, and the goals it does not even try for.
 
 from __future__ import annotations
 
-import argparse
 import sys
 from collections.abc import Callable
 from typing import NamedTuple
@@ -167,12 +166,11 @@ def draw_reach(rates: np.ndarray) -> list[str]:
 
 
 def main(argv=None) -> int:
+    from benchmarks import run_args
     from d2c_jax.curricula import classifier
     from d2c_jax.training import runs
 
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("run")
-    parser.add_argument("--seed-index", type=int, default=0)
+    parser = run_args.probe_parser(__doc__)
     parser.add_argument("--per-head", action="store_true", help="each head's map per mode")
     parser.add_argument(
         "--reach", type=int, default=0, metavar="N", help="reach map, N episodes per cell"

@@ -411,3 +411,21 @@ def test_actor_probe_refuses_bad_input(argv, message, capsys):
     assert actor_probe.main(argv) == 2
     first = capsys.readouterr().err.splitlines()[0]
     assert first.startswith("error: ") and message in first
+
+
+@pytest.mark.parametrize(
+    "probe, argv, message",
+    [
+        ("critic_probe", ["/nonexistent", "--episodes", "0"], "--episodes must be >= 1"),
+        ("critic_probe", ["/nonexistent"], "not a run directory"),
+        ("visit_map", ["/nonexistent"], "not a run directory"),
+        ("reward_probe", ["/nonexistent", "--seed-index", "1"], "not a run directory"),
+    ],
+)
+def test_run_probes_share_the_exit_2_contract(probe, argv, message, capsys):
+    import importlib
+
+    module = importlib.import_module(f"benchmarks.{probe}")
+    assert module.main(argv) == 2
+    first = capsys.readouterr().err.splitlines()[0]
+    assert first.startswith("error: ") and message in first
