@@ -1,6 +1,7 @@
 """Where a run's agent has been, per cell, and what its classifier makes of it.
 
-    python -m benchmarks.visit_map RUN_DIR [--seed-index 0] [--per-head]
+    python -m benchmarks.visit_map RUN_DIR [--seed-index 0] [--per-head] [--her-goals]
+        [--reach N]
 
 Reads the run's newest checkpoint and prints three maps side by side, over the maze's
 layout (mazes, Ant) or the table cut into 0.1 squares seen from above (Sawyer; scored at
@@ -14,6 +15,12 @@ complex_maze and spiral_maze (benchmarks/RESULTS.md) was read from these maps.
 `--per-head` adds, for each mode's conditioning goal g_k, each head's f_i(cell; g_k)
 (10 x, 0-9): whether the heads disagree by goal or only by region (why spiral_maze's
 curriculum is mode-agnostic, docs/DEVIATIONS.md).
+
+`--her-goals` adds where HER's "future" goals land for the transitions that start in
+their episode's start cell (log10 of the expected number per 10^6 of them): the goals the
+critic learns values for at the start, so a cell with none is one whose value cannot flow
+back to s_0 (benchmarks/RESULTS.md, stop 64: 73% of the Ant's stored transitions lie near
+its start, and their goals almost never past its frontier).
 
 `--reach N` adds where the policy can go: for each free cell, the share of N episodes
 from the start state (SPEC §7's evaluation: deterministic actor, no goal switching,
@@ -157,6 +164,46 @@ def reach_rates(env, policy, grid: Grid, episodes: int, key) -> tuple[np.ndarray
     return per_cell[0], per_cell[1]
 
 
+def her_goals_from_start(
+    grid: Grid, achieved: np.ndarray, relabel_prob: float, min_distance: float, chunk: int = 16
+) -> np.ndarray:
+    """(rows, cols): where HER's "future" goals land for the transitions that start in
+    their episode's start cell, as the expected number per such transition (exact, not
+    sampled). These are the goals the critic learns about at the start: a goal cell
+    with none is one whose value cannot flow back to s_0.
+
+    For transition t of an episode of horizon H, `her.sample_relabelled` takes
+    phi(s_t') with t' uniform in [t + 1, H] with probability `relabel_prob`, unless it
+    lies within `min_distance` of phi(s_t); so each t' weighs relabel_prob / (H - t)
+    when it moved that far, else nothing (the own goal is kept; HER's "random" share,
+    if any, is left out).
+
+    Args:
+      grid: the cells (`env_grid`).
+      achieved: (episodes, H + 1, goal_dim) stored achieved goals phi(s_0..s_H).
+      relabel_prob: `HERConfig.relabel_prob`; min_distance: `her.min_future_radii` x
+        the success radius.
+      chunk: episodes per vectorised block (memory: chunk x H x (H + 1) floats).
+    """
+    n_rows, n_cols = len(grid.layout), len(grid.layout[0])
+    episodes, horizon = achieved.shape[0], achieved.shape[1] - 1
+    rows, cols = grid.cell_of(np.asarray(achieved, np.float64)[..., :2].reshape(-1, 2))
+    inside = (rows >= 0) & (rows < n_rows) & (cols >= 0) & (cols < n_cols)
+    cell = np.where(inside, rows * n_cols + cols, -1).reshape(episodes, horizon + 1)
+    from_start = (cell[:, :horizon] == cell[:, :1]) & (cell[:, :1] >= 0)  # (E, H)
+    t = np.arange(horizon)[:, None]
+    later = (np.arange(horizon + 1)[None] > t) / (horizon - t)  # (H, H + 1) weight of t'
+    totals = np.zeros(n_rows * n_cols + 1)  # the last slot collects off-grid goals
+    for lo in range(0, episodes, chunk):
+        a = np.asarray(achieved[lo : lo + chunk], np.float64)
+        gap = np.linalg.norm(a[:, None, :, :] - a[:, :horizon, None, :], axis=-1)
+        used = (gap > min_distance) | (min_distance <= 0)  # her.py filters only when > 0
+        weight = relabel_prob * later[None] * used  # (e, H, H + 1)
+        per_target = (weight * from_start[lo : lo + chunk, :, None]).sum(axis=1)  # (e, H + 1)
+        np.add.at(totals, cell[lo : lo + chunk], per_target)
+    return (totals[:-1] / max(int(from_start.sum()), 1)).reshape(n_rows, n_cols)
+
+
 def draw_reach(rates: np.ndarray) -> list[str]:
     """One string per row: 10 x rate (0-9), `A` where every episode reached, `#` at NaN."""
     return [
@@ -172,6 +219,11 @@ def main(argv=None) -> int:
 
     parser = run_args.probe_parser(__doc__)
     parser.add_argument("--per-head", action="store_true", help="each head's map per mode")
+    parser.add_argument(
+        "--her-goals",
+        action="store_true",
+        help="where HER's future goals land for the transitions that start in the start cell",
+    )
     parser.add_argument(
         "--reach", type=int, default=0, metavar="N", help="reach map, N episodes per cell"
     )
@@ -215,6 +267,21 @@ def main(argv=None) -> int:
             drawn = [draw_scores(layout, h, modes) for h in heads]
             for row in zip(*drawn, strict=True):
                 print("   ".join(row))
+    if args.her_goals:
+        per_start = her_goals_from_start(
+            grid, ag, cfg.her.relabel_prob, cfg.her.min_future_radii * env.success_radius
+        )
+        print(
+            "HER future goals per 10^6 transitions that start in their episode's start "
+            "cell (log10), visits (log10)"
+        )
+        maps = zip(
+            draw_counts(layout, np.floor(1e6 * per_start)),
+            draw_counts(layout, every),
+            strict=True,
+        )
+        for a, b in maps:
+            print(f"{a}   {b}")
     if args.reach:
         from d2c_jax.training import agent as agent_lib
 

@@ -89,6 +89,31 @@ def test_visit_map_counts_points_per_cell_by_hand():
     assert visit_map.draw_scores(layout, scores, [(1, 1)])[1] == "0m090"
 
 
+def test_visit_map_her_goals_from_start_by_hand():
+    """H = 2, phi(s) = x: 0.5, 0.5, then 4.5 (one cell right). Both transitions start in
+    the start cell. t = 0 draws t' in {1, 2} (0.8 / 2 each), t = 1 draws t' = 2 (0.8):
+    per transition 0.2 goals in the start cell and 0.6 in the next. With a minimum
+    distance of 1, t = 0's t' = 1 (not moved) is dropped: 0 and 0.6."""
+    from benchmarks import visit_map
+
+    layout = ("#####", "#.S.#", "#####")
+    grid = visit_map.layout_grid(layout, 4.0)
+    achieved = np.array([[[0.5, 0.0], [0.5, 0.0], [4.5, 0.0]]])
+    per = visit_map.her_goals_from_start(grid, achieved, 0.8, 0.0)
+    want = np.zeros((3, 5))
+    want[1, 2], want[1, 3] = 0.2, 0.6
+    np.testing.assert_allclose(per, want)
+    want[1, 2] = 0.0
+    np.testing.assert_allclose(visit_map.her_goals_from_start(grid, achieved, 0.8, 1.0), want)
+    # A second episode starts a cell to the left and moves into S's cell at t = 1: only
+    # its t = 0 starts in its own start cell, with both futures (0.4 each) in S's cell.
+    # Three transitions in all: 1.2 / 3 goals in the right cell, 0.8 / 3 in S's.
+    other = np.array([[[-4.5, 0.0], [0.5, 0.0], [0.5, 0.0]]])
+    both = np.concatenate([achieved, other])
+    want[1, 2], want[1, 3] = 0.8 / 3, 1.2 / 3
+    np.testing.assert_allclose(visit_map.her_goals_from_start(grid, both, 0.8, 1.0, chunk=1), want)
+
+
 def test_profile_table_shares_add_up_by_hand():
     """Each part's share is its time over the whole; "other" is what the parts miss; the
     evaluation's share is also over the train step's whole."""
@@ -155,9 +180,10 @@ def test_visit_map_table_grid_by_hand():
     assert visit_map.table_grid(Boxed()).layout == ("....", "###.")
 
 
-def test_reward_probe_reports_every_distance_and_all_pairs(tmp_path):
-    """On a tiny run: one line per radius and per band, and the bands hold every pair."""
-    from benchmarks import reward_probe
+def test_reward_probe_reports_every_distance_and_all_pairs(tmp_path, capsys):
+    """On a tiny run: one line per radius and per band, and the bands hold every pair;
+    visit_map's command line draws its maps (layout-shaped rows) of the same run."""
+    from benchmarks import reward_probe, visit_map
     from d2c_jax.training import cli, loop, runs
 
     cfg, _, _ = cli.parse_args(["--env", "medium_maze", "--preset", "tiny"])
@@ -169,6 +195,13 @@ def test_reward_probe_reports_every_distance_and_all_pairs(tmp_path):
     pairs = [int(line.split(": ")[1].split(" pairs")[0]) for line in lines[-5:]]
     assert sum(pairs) == 500
     assert reward_probe.main([str(tmp_path / "missing")]) == 2
+    capsys.readouterr()
+    assert visit_map.main([str(tmp_path / "run"), "--her-goals"]) == 0
+    lines = capsys.readouterr().out.splitlines()
+    width = len(env.layout[0])
+    her = lines[lines.index(next(x for x in lines if x.startswith("HER future goals"))) + 1 :]
+    assert len(her) == len(env.layout) and all(len(x) == 2 * width + 3 for x in her)
+    assert her[0] == "#" * width + "   " + "#" * width  # the outer wall
 
 
 def test_paired_ratio_is_the_median_of_back_to_back_ratios_by_hand():
