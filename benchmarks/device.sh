@@ -19,6 +19,11 @@
 #   ant_quick   `--preset quick` (2x256, utd 0.25): its env steps/s on the GPU, which says
 #               whether a 3M-env-step run fits in one command;
 #   ant_quick_big  quick with Table 2's 3x512 networks and batch 512;
+#   ant_walk50_big  the CPU's best Ant configuration so far (stop 62's 50-walk-step run,
+#               benchmarks/runs/..._walk50_seed0_config.json) with Table 2's 3x512
+#               networks and batch 512: whether the paper's network size moves the
+#               frontier faster than 2x256 (on 2 CPU cores one cell per ~300k env steps,
+#               RESULTS.md stop 64). Give it ANT_S=480 or more;
 #   seeds       vmapped seeds of the paper preset on medium_maze.
 # Usage (from the repo root): STAGES="ant ant_envs4 ant_quick" bash benchmarks/device.sh
 # The wheels (for the image's Python 3.12; `.whl/` is ignored by git and travels as a
@@ -67,11 +72,15 @@ for stage in $STAGES; do
     ant_quick) ant ant_quick --preset quick ;;
     ant_quick_big)
       ant ant_quick_big --preset quick --sac.hidden-sizes 512,512,512 --sac.batch-size 512 ;;
+    ant_walk50_big)
+      ant ant_walk50_big --config \
+        benchmarks/runs/ant_quick_issue15_rk4_utd1_lr3e-4_clf3x256_clip_minfuture1_poolphase_walk50_seed0_config.json \
+        --sac.hidden-sizes 512,512,512 --sac.batch-size 512 ;;
     seeds)
       echo "== seeds $(date +%T)"
       timeout "${SEEDS_S:-200}" python3 -m benchmarks.trainer --parts seeds --env medium_maze \
         --preset paper --seeds 1 8 32 2>&1 | tee "$OUT/seeds.log" ;;
-    *) echo "unknown stage: $stage (throughput ant ant_clip ant_envs4 ant_envs20 ant_quick ant_quick_big seeds)" >&2
+    *) echo "unknown stage: $stage (throughput ant ant_clip ant_envs4 ant_envs20 ant_quick ant_quick_big ant_walk50_big seeds)" >&2
       exit 2 ;;
   esac
 done
