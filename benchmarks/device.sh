@@ -22,8 +22,9 @@
 #   ant_walk50_big  the CPU's best Ant configuration so far (stop 62's 50-walk-step run,
 #               benchmarks/runs/..._walk50_seed0_config.json) with Table 2's 3x512
 #               networks and batch 512: whether the paper's network size moves the
-#               frontier faster than 2x256 (on 2 CPU cores one cell per ~300k env steps,
-#               RESULTS.md stop 64). Give it ANT_S=480 or more;
+#               frontier faster than 2x256 (on 2 CPU cores about one cell per 300k env
+#               steps to 1.5M, a quarter of that after; RESULTS.md, stops 63-64). Give it
+#               ANT_S=480 or more;
 #   seeds       vmapped seeds of the paper preset on medium_maze.
 # Usage (from the repo root): STAGES="ant ant_envs4 ant_quick" bash benchmarks/device.sh
 # The wheels (for the image's Python 3.12; `.whl/` is ignored by git and travels as a

@@ -20,7 +20,7 @@ curriculum is mode-agnostic, docs/DEVIATIONS.md).
 their episode's start cell (log10 of the expected number per 10^6 of them): the goals the
 critic learns values for at the start, so a cell with none is one whose value cannot flow
 back to s_0 (benchmarks/RESULTS.md, stop 64: 73% of the Ant's stored transitions lie near
-its start, and their goals almost never past its frontier).
+its start, and ten times fewer of their goals lie at its frontier than before it).
 
 `--reach N` adds where the policy can go: for each free cell, the share of N episodes
 from the start state (SPEC §7's evaluation: deterministic actor, no goal switching,
@@ -167,9 +167,10 @@ def reach_rates(env, policy, grid: Grid, episodes: int, key) -> tuple[np.ndarray
 def her_goals_from_start(
     grid: Grid, achieved: np.ndarray, relabel_prob: float, min_distance: float, chunk: int = 16
 ) -> np.ndarray:
-    """(rows, cols): where HER's "future" goals land for the transitions that start in
-    their episode's start cell, as the expected number per such transition (exact, not
-    sampled). These are the goals the critic learns about at the start: a goal cell
+    """(rows, cols): where HER's "future" goals land for the stored transitions that
+    start in their episode's start cell, as the expected number per such transition
+    (exact, not sampled; every stored transition weighs the same, whatever share of the
+    batches its phase gets). These are the goals the critic learns about at the start: a goal cell
     with none is one whose value cannot flow back to s_0.
 
     For transition t of an episode of horizon H, `her.sample_relabelled` takes
