@@ -51,11 +51,11 @@ def probe(cfg, env, ts, points: int, key) -> list[str]:
 
 
 def main(argv=None) -> int:
-    parser = run_args.probe_parser(__doc__, run_dest="run_dir")
+    parser = run_args.probe_parser(__doc__)
     parser.add_argument("--points", type=int, default=4000)
     args = parser.parse_args(argv)
     try:
-        cfg, env, ts = runs.load_one_run(args.run_dir, args.seed_index)
+        cfg, env, ts = runs.load_one_run(args.run, args.seed_index)
     except runs.RunError as err:
         print(f"error: {err}", file=sys.stderr)
         return 2

@@ -10,12 +10,12 @@ from __future__ import annotations
 import argparse
 
 
-def probe_parser(doc: str, run_dest: str = "run", episodes: int | None = None):
+def probe_parser(doc: str, episodes: int | None = None):
     """An `ArgumentParser` described by `doc`'s first line, with the positional run
-    directory (stored as `run_dest`), `--seed-index` and, where `episodes` is given,
-    `--episodes` with that default (checked by `check_episodes`)."""
+    directory `run`, `--seed-index` and, where `episodes` is given, `--episodes` with
+    that default (checked by `check_episodes`)."""
     parser = argparse.ArgumentParser(description=doc.splitlines()[0])
-    parser.add_argument(run_dest)
+    parser.add_argument("run")
     parser.add_argument("--seed-index", type=int, default=0)
     if episodes is not None:
         parser.add_argument("--episodes", type=int, default=episodes)

@@ -114,13 +114,19 @@ def env_grid(env) -> Grid:
     return table_grid(env)
 
 
+def flat_cells(grid: Grid, points: np.ndarray) -> np.ndarray:
+    """(n,) row-major index of the cell each point (n, >= 2) lies in; -1 off the grid."""
+    n_rows, n_cols = len(grid.layout), len(grid.layout[0])
+    rows, cols = grid.cell_of(np.asarray(points, np.float64)[:, :2])
+    inside = (rows >= 0) & (rows < n_rows) & (cols >= 0) & (cols < n_cols)
+    return np.where(inside, rows * n_cols + cols, -1)
+
+
 def grid_counts(grid: Grid, points: np.ndarray) -> np.ndarray:
     """(rows, cols) number of the points (n, >= 2) lying in each cell of the grid."""
-    rows, cols = grid.cell_of(np.asarray(points, np.float64)[:, :2])
-    counts = np.zeros((len(grid.layout), len(grid.layout[0])), int)
-    inside = (rows >= 0) & (rows < counts.shape[0]) & (cols >= 0) & (cols < counts.shape[1])
-    np.add.at(counts, (rows[inside], cols[inside]), 1)
-    return counts
+    n_rows, n_cols = len(grid.layout), len(grid.layout[0])
+    cells = flat_cells(grid, points)
+    return np.bincount(cells[cells >= 0], minlength=n_rows * n_cols).reshape(n_rows, n_cols)
 
 
 def head_maps(net, params, grid: Grid, goal: np.ndarray) -> np.ndarray:
@@ -188,9 +194,7 @@ def her_goals_from_start(
     """
     n_rows, n_cols = len(grid.layout), len(grid.layout[0])
     episodes, horizon = achieved.shape[0], achieved.shape[1] - 1
-    rows, cols = grid.cell_of(np.asarray(achieved, np.float64)[..., :2].reshape(-1, 2))
-    inside = (rows >= 0) & (rows < n_rows) & (cols >= 0) & (cols < n_cols)
-    cell = np.where(inside, rows * n_cols + cols, -1).reshape(episodes, horizon + 1)
+    cell = flat_cells(grid, achieved.reshape(-1, achieved.shape[-1])).reshape(episodes, -1)
     from_start = (cell[:, :horizon] == cell[:, :1]) & (cell[:, :1] >= 0)  # (E, H)
     t = np.arange(horizon)[:, None]
     later = (np.arange(horizon + 1)[None] > t) / (horizon - t)  # (H, H + 1) weight of t'
