@@ -139,6 +139,9 @@ class HERConfig:
     """Probability that a sampled transition's goal is instead the achieved goal of a state
     drawn uniformly from the whole buffer (HER's "random" strategy); relabel_prob +
     random_prob <= 1, the rest keep their own goal. 0: off, future-only (SPEC §4)."""
+    n_step: int = 1
+    """Steps n of each SAC target's return along the stored episode (uncorrected n-step
+    return, cut at the episode's end); 1: the one-step target of the paper (SPEC §4)."""
 
 
 @dataclasses.dataclass(frozen=True)

@@ -52,8 +52,9 @@ _FAMILY_ENVS = ["medium_maze"] + [
             ["--her.relabel-prob", "0.5", "--her.random-prob", "0.3"],
             [("her", "relabel_prob", 0.5), ("her", "random_prob", 0.3)],
         ),
+        (["--her.n-step", "4"], [("her", "n_step", 4)]),
     ],
-    ids=["relative_goal", "pool_phase", "actor_mean_reg", "her_random"],
+    ids=["relative_goal", "pool_phase", "actor_mean_reg", "her_random", "n_step"],
 )
 def test_default_off_options_train_on_each_family(env_name, args, fields, tmp_path):
     """The default-off options through the CLI, one env per family:
@@ -62,7 +63,7 @@ def test_default_off_options_train_on_each_family(env_name, args, fields, tmp_pa
     `--curriculum.pool-phase curriculum_phase` (matching candidates held at each pool
     episode's success state, here 5 walk steps after it) and `--sac.actor-mean-reg`
     (the pre-tanh mean's penalty in J_pi) and `--her.random-prob` (HER's "random" goals
-    from the whole buffer). The Ant and Sawyer runs compile
+    from the whole buffer) and `--her.n-step` (n-step returns). The Ant and Sawyer runs compile
     their MJX programs anew (1-2 min each on 2 cores), so they are slow tests."""
     from d2c_jax.training import logging as logging_lib
 

@@ -178,3 +178,63 @@ def test_terminal_fn_masks_the_bootstrap_where_the_relabelled_goal_is_reached():
     np.testing.assert_array_equal(terminal.mask, [0.0, 0.0, 1.0, 1.0])
     np.testing.assert_allclose(terminal.reward, [0.0, 0.3, 0.3, 5.0])
     np.testing.assert_array_equal(her.with_reward(tr, reward_first_coordinate).mask, 1.0)
+
+
+def time_index_reward(ag_next, goal):
+    """The step t' of phi(s_t') in `buffer_with`'s code (100 id + t', id); goal unused."""
+    return ag_next[..., 0] - 100.0 * ag_next[..., 1] + 0.0 * goal[..., 0]
+
+
+def test_n_step_rows_sum_the_next_rewards_up_to_the_episode_end():
+    """n = 3, H = 5: row t sums gamma^k (t + k + 1) over k < n' = min(3, 5 - t), its
+    bootstrap state is s_{t+n'} with weight gamma^(n'-1), by hand for every t."""
+    gamma, n = 0.9, 3
+    state = buffer_with([2])
+    tr = her.sample_relabelled(0.0, state, 400, jax.random.key(3), n_step=n)
+    b = her.with_reward(tr, time_index_reward, gamma=gamma)
+    t = np.asarray(b.obs[:, 0]).astype(int) % 100
+    assert set(t.tolist()) == set(range(H))
+    n_taken = np.minimum(n, H - t)
+    k = np.arange(n)[None]  # (1, n)
+    expected = np.sum(np.where(k < n_taken[:, None], gamma**k * (t[:, None] + k + 1), 0), 1)
+    np.testing.assert_allclose(b.reward, expected, rtol=1e-6)
+    np.testing.assert_allclose(b.mask, gamma ** (n_taken - 1.0), rtol=1e-6)
+    np.testing.assert_array_equal(np.asarray(b.next_obs[:, 0]) % 100, t + n_taken)
+    np.testing.assert_array_equal(b.goal, STORED_GOAL)  # relabel_prob 0 keeps the goal
+
+
+def test_n_step_relabelled_goals_are_rewarded_along_the_whole_path():
+    """With relabel_prob 1 every goal is a later step t'' of the same episode, and row t
+    pays sum_k gamma^k r(phi(s_{t+k+1}), g) with the relabelled g: checked against the
+    goal-dependent reward of `reward_first_coordinate`."""
+    gamma, n = 0.5, 2
+    state = buffer_with([3])
+    tr = her.sample_relabelled(1.0, state, 200, jax.random.key(4), n_step=n)
+    b = her.with_reward(tr, reward_first_coordinate, gamma=gamma)
+    t, g = np.asarray(b.obs[:, 0]) % 100, np.asarray(b.goal[:, 0])
+    n_taken = np.minimum(n, H - t)
+    r = lambda k: 300.0 + t + k + 1 - 1000.0 * g  # noqa: E731
+    expected = r(0) + np.where(n_taken > 1, gamma * r(1), 0.0)
+    np.testing.assert_allclose(b.reward, expected, rtol=1e-6)
+
+
+def test_n_step_return_stops_at_a_terminal():
+    """Terminals inside the n steps end the sum and zero the bootstrap, by hand: rewards
+    1, 2, 3 with a terminal at the second step give 1 + gamma 2 and mask 0; without one,
+    1 + gamma 2 + gamma^2 3 and mask gamma^2; rows cut to n' = 1 and 2 keep their first
+    one and two steps."""
+    gamma = 0.5
+    path = jnp.array([[[1.0, 9.0], [2.0, 0.0], [3.0, 9.0]]] * 3)  # (3 rows, n = 3, 2)
+    tr = her.RelabelledTransitions(
+        obs=jnp.zeros((3, 1)), action=jnp.zeros((3, 1)), next_obs=jnp.zeros((3, 1)),
+        next_achieved_goal=path[:, 0], goal=jnp.zeros((3, 2)), path_achieved_goal=path,
+        n_taken=jnp.array([3, 1, 2]),
+    )  # fmt: skip
+    first = lambda ag, g: ag[..., 0]  # noqa: E731
+    at_zero = lambda ag, g: ag[..., 1] == 0.0  # noqa: E731 terminal at the second step
+    b = her.with_reward(tr, first, at_zero, gamma=gamma)
+    np.testing.assert_allclose(b.reward, [1 + gamma * 2, 1.0, 1 + gamma * 2])
+    np.testing.assert_allclose(b.mask, [0.0, 1.0, 0.0])
+    free = her.with_reward(tr, first, gamma=gamma)
+    np.testing.assert_allclose(free.reward, [1 + gamma * 2 + gamma**2 * 3, 1.0, 1 + gamma * 2])
+    np.testing.assert_allclose(free.mask, [gamma**2, 1.0, gamma])

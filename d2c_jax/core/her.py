@@ -73,6 +73,24 @@ class RelabelledTransitions(NamedTuple):
     next_obs: jax.Array  # (B, obs_dim) s_{t+1}
     next_achieved_goal: jax.Array  # (B, goal_dim) phi(s_{t+1})
     goal: jax.Array  # (B, goal_dim) the goal after relabelling
+    # n-step returns only (None for one-step; then next_obs is s_{t+1}):
+    path_achieved_goal: jax.Array | None = None  # (B, n, goal_dim) phi(s_{t+1..t+n}), H-clamped
+    n_taken: jax.Array | None = None  # (B,) int32 n' = min(n, H - t); next_obs is s_{t+n'}
+
+
+def _n_step_path(state: replay.ReplayState, episode: jax.Array, step: jax.Array, n_step: int):
+    """The n steps after each sampled transition, cut at the episode's end.
+
+    Args:
+      episode: (B,) int32 slots; step: (B,) int32 t in [0, H).
+    Returns:
+      phi(s_{t+1..t+n}) (B, n, goal_dim), steps past H repeating phi(s_H); s_{t+n'}
+      (B, obs_dim); n' = min(n, H - t) (B,) int32, at least 1.
+    """
+    n_taken = jnp.minimum(n_step, state.horizon - step)  # (B,)
+    later = jnp.minimum(step[:, None] + jnp.arange(1, n_step + 1), state.horizon)  # (B, n)
+    path = state.achieved_goal[episode[:, None], later]
+    return path, state.obs[episode, step + n_taken], n_taken
 
 
 def sample_relabelled(
@@ -83,6 +101,7 @@ def sample_relabelled(
     walk_fraction: float = 0.0,
     min_distance: float = 0.0,
     random_prob: float = 0.0,
+    n_step: int = 1,
 ) -> RelabelledTransitions:
     """Samples `batch_size` transitions and relabels their goals ("future" strategy).
 
@@ -101,6 +120,9 @@ def sample_relabelled(
         transitions the "future" coin left alone, so the three shares are relabel_prob,
         random_prob and 1 - both (HERConfig.random_prob). 0: off, and the program is
         the future-only one.
+      n_step: static steps of the return (HERConfig.n_step): > 1 adds each transition's
+        next n steps (`path_achieved_goal`, `n_taken`) and sets next_obs to s_{t+n'}.
+        1: the one-step transition, and the program is the one-step one.
     Returns:
       RelabelledTransitions with leading axis B.
     """
@@ -116,11 +138,19 @@ def sample_relabelled(
     goal = jnp.where(use_future[:, None], future, tr.goal)
     if random_prob > 0:  # static: the default program is unchanged
         goal = _with_random_goals(state, goal, coin, relabel_prob, random_prob, key)
-    return RelabelledTransitions(tr.obs, tr.action, tr.next_obs, tr.next_achieved_goal, goal)
+    if n_step == 1:
+        return RelabelledTransitions(tr.obs, tr.action, tr.next_obs, tr.next_achieved_goal, goal)
+    path, last_obs, n_taken = _n_step_path(state, tr.episode, tr.step, n_step)
+    return RelabelledTransitions(
+        tr.obs, tr.action, last_obs, tr.next_achieved_goal, goal, path, n_taken
+    )
 
 
 def with_reward(
-    tr: RelabelledTransitions, reward_fn: RewardFn, terminal_fn: RewardFn | None = None
+    tr: RelabelledTransitions,
+    reward_fn: RewardFn,
+    terminal_fn: RewardFn | None = None,
+    gamma: float = 0.99,
 ) -> Batch:
     """The SAC batch of `tr`: reward_fn(phi(s_{t+1}), goal) and its bootstrap mask.
 
@@ -128,8 +158,11 @@ def with_reward(
     1 everywhere; time limits are truncations. A baseline whose own code ends the critic's
     episode at success (OUTPACE) passes terminal_fn(ag_next, goal) -> 1 where s_{t+1} is
     terminal for the relabelled goal, and the mask is 1 - that. Probe tests with other
-    terminals build `Batch` directly.
+    terminals build `Batch` directly. With an n-step `tr` (`n_taken` set) the row is the
+    n-step return (`_n_step_batch`), discounted by `gamma`, the SAC discount.
     """
+    if tr.n_taken is not None:
+        return _n_step_batch(tr, reward_fn, terminal_fn, gamma)
     reward = reward_fn(tr.next_achieved_goal, tr.goal).astype(jnp.float32)
     if terminal_fn is None:
         mask = jnp.ones(reward.shape, jnp.float32)
@@ -143,6 +176,29 @@ def with_reward(
         goal=tr.goal,
         mask=mask,
     )
+
+
+def _n_step_batch(
+    tr: RelabelledTransitions, reward_fn: RewardFn, terminal_fn: RewardFn | None, gamma: float
+) -> Batch:
+    """The n-step row: reward R = sum_{k<n'} gamma^k alive_k r_k and mask gamma^(n'-1)
+    alive_{n'}, so that SAC's target r + gamma mask V(s') is R + gamma^{n'} alive_{n'}
+    V(s_{t+n'}); alive_k = prod_{j<k} (1 - terminal_j) (1 without terminals)."""
+    n = tr.path_achieved_goal.shape[-2]
+    goal = jnp.broadcast_to(tr.goal[..., None, :], tr.path_achieved_goal.shape)  # (B, n, d)
+    reward = reward_fn(tr.path_achieved_goal, goal).astype(jnp.float32)  # (B, n)
+    taken = jnp.arange(n) < tr.n_taken[..., None]  # (B, n) steps inside the episode
+    if terminal_fn is None:
+        alive = jnp.ones(reward.shape[:-1] + (n + 1,), jnp.float32)
+    else:
+        ended = terminal_fn(tr.path_achieved_goal, goal).astype(jnp.float32) * taken
+        alive = jnp.cumprod(jnp.concatenate([jnp.ones_like(ended[..., :1]), 1.0 - ended], -1), -1)
+    discount = gamma ** jnp.arange(n, dtype=jnp.float32)  # (n,)
+    total = jnp.sum(jnp.where(taken, discount * alive[..., :n] * reward, 0.0), axis=-1)
+    alive_after = jnp.take_along_axis(alive, tr.n_taken[..., None], axis=-1)[..., 0]
+    mask = gamma ** (tr.n_taken - 1).astype(jnp.float32) * alive_after
+    return Batch(obs=tr.obs, action=tr.action, reward=total, next_obs=tr.next_obs,
+                 goal=tr.goal, mask=mask)  # fmt: skip
 
 
 def relabel(

@@ -29,7 +29,7 @@ class Batch(NamedTuple):
 
     obs: jax.Array  # (B, obs_dim) s_t
     action: jax.Array  # (B, action_dim) a_t
-    reward: jax.Array  # (B,) r = reward_fn(phi(s_{t+1}), goal)
-    next_obs: jax.Array  # (B, obs_dim) s_{t+1}
+    reward: jax.Array  # (B,) r = reward_fn(phi(s_{t+1}), goal); n-step: the n-step sum
+    next_obs: jax.Array  # (B, obs_dim) s_{t+1}; n-step: s_{t+n'}
     goal: jax.Array  # (B, goal_dim) the (possibly relabelled) goal
-    mask: jax.Array  # (B,) bootstrap mask: 0 at a true terminal, else 1
+    mask: jax.Array  # (B,) bootstrap weight: 0 at a true terminal, else 1; n-step: gamma^(n'-1)

@@ -472,13 +472,16 @@ class Agent:
         def draw_block(key):  # -> leaves (block_size, B, ...)
             keys = jax.random.split(key, sac.block_size(cfg.sac))
             draw = lambda k: her.sample_relabelled(  # noqa: E731
-                prob, ts.replay, cfg.sac.batch_size, k, walk, min_future, cfg.her.random_prob
+                prob, ts.replay, cfg.sac.batch_size, k, walk, min_future, cfg.her.random_prob,
+                cfg.her.n_step,
             )
             return jax.vmap(draw)(keys)
 
         def update_block(sac_state, drawn_and_key):
             drawn, key = drawn_and_key
-            batches = jax.vmap(lambda tr: her.with_reward(tr, reward_fn, terminal_fn))(drawn)
+            batches = jax.vmap(
+                lambda tr: her.with_reward(tr, reward_fn, terminal_fn, cfg.sac.gamma)
+            )(drawn)
             return sac.update_sac_block(
                 cfg.sac, self.sac_nets, self.sac_optimizers, ts.hparams.sac, sac_state,
                 batches, self.env, key,

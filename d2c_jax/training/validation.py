@@ -213,6 +213,8 @@ _RANGE_EXCEPTIONS: dict[str, Range] = {
     # A distance in success radii.
     "her.min_future_radii": Interval(0),
     "her.random_prob": Interval(0, 1),
+    # Steps of the return: at least the one-step target.
+    "her.n_step": Interval(1, integer=True),
     "replay.walk_fraction": Interval(0, 1),
     "curriculum.post_success_threshold": Interval(0, 1),
     "curriculum.pool_tail_fraction": Interval(0, 1),
