@@ -472,7 +472,13 @@ class Agent:
         def draw_block(key):  # -> leaves (block_size, B, ...)
             keys = jax.random.split(key, sac.block_size(cfg.sac))
             draw = lambda k: her.sample_relabelled(  # noqa: E731
-                prob, ts.replay, cfg.sac.batch_size, k, walk, min_future, cfg.her.random_prob,
+                prob,
+                ts.replay,
+                cfg.sac.batch_size,
+                k,
+                walk,
+                min_future,
+                cfg.her.random_prob,
                 cfg.her.n_step,
             )
             return jax.vmap(draw)(keys)
