@@ -150,7 +150,7 @@ def with_reward(
     tr: RelabelledTransitions,
     reward_fn: RewardFn,
     terminal_fn: RewardFn | None = None,
-    gamma: float = 0.99,
+    gamma: float | None = None,
 ) -> Batch:
     """The SAC batch of `tr`: reward_fn(phi(s_{t+1}), goal) and its bootstrap mask.
 
@@ -159,9 +159,12 @@ def with_reward(
     episode at success (OUTPACE) passes terminal_fn(ag_next, goal) -> 1 where s_{t+1} is
     terminal for the relabelled goal, and the mask is 1 - that. Probe tests with other
     terminals build `Batch` directly. With an n-step `tr` (`n_taken` set) the row is the
-    n-step return (`_n_step_batch`), discounted by `gamma`, the SAC discount.
+    n-step return (`_n_step_batch`), discounted by `gamma`, the SAC discount, which such a
+    batch requires (a one-step batch ignores it).
     """
     if tr.n_taken is not None:
+        if gamma is None:
+            raise ValueError("an n-step batch needs the SAC discount gamma")
         return _n_step_batch(tr, reward_fn, terminal_fn, gamma)
     reward = reward_fn(tr.next_achieved_goal, tr.goal).astype(jnp.float32)
     if terminal_fn is None:
