@@ -540,6 +540,10 @@ _TRAP_ENVS = ("complex_maze", "spiral_maze", "ant", "sawyer_push", "sawyer_pick_
 #   the only configuration measured to reach a mode (the run with all but the last was at
 #   eval 0.0 to 3M; with 10-step returns from its 2.7M checkpoint, mode 0 at 0.8 30k env
 #   steps later and 1.0 at 3M). About 57 s per 6000-step iteration here (8 hours per 3M).
+# - sawyer_push also 10-step returns since 2026-12-06: from scratch with seed 0, mode 1
+#   (behind the wall) at 0.7-1.0 from 320k env steps and mode 2 at 1.0 from 160k, where
+#   the same preset without them had mode 2 first at 416k and mode 0 or 1 at no
+#   evaluation to 988k.
 _SPEC_CLASSIFIER_SIZE = dict(
     hidden_sizes=ClassifierConfig.hidden_sizes, batch_size=ClassifierConfig.batch_size
 )  # SPEC §3's trunk and batch, which the common quick settings shrink to 2x128 and 256
@@ -560,7 +564,7 @@ _QUICK_OVERRIDES: dict[str, dict] = {
         her=dict(min_future_radii=1.0, n_step=10),
         curriculum=dict(pool_phase="curriculum_phase", pool_walk_steps=50),
     ),
-    "sawyer_push": dict(eval_every=30_000, utd=1.0, sac=_SAC_LR_3E4),
+    "sawyer_push": dict(eval_every=30_000, utd=1.0, sac=_SAC_LR_3E4, her=dict(n_step=10)),
     "sawyer_pick_place": dict(eval_every=30_000),
 }
 
