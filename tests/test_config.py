@@ -383,8 +383,8 @@ def test_quick_preset_adds_exploration_everywhere_but_medium_maze():
     """complex quick = variant V of RESULTS.md (U: the exploration options and utd 1; and
     SPEC §3's 3x256 classifier), spiral quick = variant LV (V, the goal-value tie-break
     beta = 1, and SAC learning rates of 3e-4) at two SAC updates per env step;
-    Ant and Sawyer quick = the options at utd 0.25 with an evaluation every 30k env steps
-    (sawyer_push with SAC learning rates of 3e-4, utd 1 and 10-step returns; Ant with
+    Ant and Sawyer quick = the options with an evaluation every 30k env steps, SAC
+    learning rates of 3e-4 and utd 1 (both Sawyer tasks with 10-step returns; Ant with
     those, the clipped target, SPEC §3's classifier, HER's filter and the walk-cut pool);
     medium_maze's quick preset keeps SPEC §3-§6 as written."""
     for env in envs.ENV_NAMES:
@@ -427,10 +427,9 @@ def test_quick_preset_adds_exploration_everywhere_but_medium_maze():
             assert quick == want
         else:
             want = dataclasses.replace(config.with_outpace_exploration(base), eval_every=30_000)
-            if env in ("sawyer_push", "ant"):
-                sac = dataclasses.replace(want.sac, actor_lr=3e-4, critic_lr=3e-4, alpha_lr=3e-4)
-                want = dataclasses.replace(want, sac=sac, utd=1.0)
-            if env == "sawyer_push":  # stop 65's 10-step returns
+            sac = dataclasses.replace(want.sac, actor_lr=3e-4, critic_lr=3e-4, alpha_lr=3e-4)
+            want = dataclasses.replace(want, sac=sac, utd=1.0)
+            if env != "ant":  # both Sawyer tasks: stop 65-66's 10-step returns
                 want = dataclasses.replace(want, her=config.HERConfig(n_step=10))
             if env == "ant":  # and stop 65's n-step run: docs/DEVIATIONS.md, "quick preset"
                 want = dataclasses.replace(
