@@ -545,9 +545,9 @@ _TRAP_ENVS = ("complex_maze", "spiral_maze", "ant", "sawyer_push", "sawyer_pick_
 #   the same preset without them had mode 2 first at 416k and mode 0 or 1 at no
 #   evaluation to 988k; eval/success >= 0.8 first at 640k and 0.87-1.0 from 704k to 804k.
 # - sawyer_pick_place, since 2026-12-06, push's settings (utd 1, SAC learning rates of
-#   3e-4, 10-step returns): with seed 0, mode 1 (across the wall, 0.2 m up) at 1.0 from
-#   320k env steps, where every earlier pick & place run (utd 0.25 or 1, learning rates
-#   1e-4 or 3e-4, one-step targets; to 0.9-1.8M) was at eval 0.0 throughout.
+#   3e-4, 10-step returns): with seed 0, eval/success 1.0 first at 384k env steps and
+#   0.9-1.0 to 484k, where every earlier pick & place run (utd 0.25 or 1, learning rates
+#   1e-4 or 3e-4, one-step targets; to 0.66-1.78M) was at eval 0.0 throughout.
 _SPEC_CLASSIFIER_SIZE = dict(
     hidden_sizes=ClassifierConfig.hidden_sizes, batch_size=ClassifierConfig.batch_size
 )  # SPEC §3's trunk and batch, which the common quick settings shrink to 2x128 and 256
