@@ -8,7 +8,10 @@ is made of, each compiled alone and timed on a replay buffer filled by real iter
 - env steps: `num_envs` episodes of H steps with the actor, goals held (no goal choice);
 - goal choice: `Agent.collect_episodes` (post-success goals from the classifier, SPEC
   §6) minus the above;
-- SAC updates: the iteration's M updates with their HER batches and classifier rewards;
+- SAC updates: the iteration's M updates with their HER batches and one-step classifier
+  rewards;
+- n-step rewards: with `her.n_step` = n > 1, the same updates with n-step returns minus
+  the above: the n - 1 further classifier calls per sampled row (0 when n = 1);
 - classifier updates: its Eq. 5 updates;
 - curriculum: one matching (Eq. 7 costs + auction), divided by the iterations it serves;
 - evaluation: one SPEC §7 evaluation (`eval_episodes` per mode, deterministic policy),
@@ -24,6 +27,7 @@ can be negative; it is reported, not hidden.
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import time
 
 import jax
@@ -73,6 +77,10 @@ def part_seconds(cfg: config.TrainConfig, env, repeats: int = 3) -> dict[str, fl
         return rollout.collect(env, actor, keep_goal, goals, cfg.num_envs, key, switch_every)
 
     n_blocks = sched.sac_updates // sac.block_size(cfg.sac)
+    one_step = trainer.Agent(
+        dataclasses.replace(cfg, her=dataclasses.replace(cfg.her, n_step=1)), env
+    )
+    sac_one_step = jax.jit(lambda ts, key: one_step.sac_blocks(ts, n_blocks, key))
     sac_updates = jax.jit(lambda ts, key: agent.sac_blocks(ts, n_blocks, key))
     classifier_updates = jax.jit(
         lambda ts, key: jax.lax.scan(
@@ -83,10 +91,15 @@ def part_seconds(cfg: config.TrainConfig, env, repeats: int = 3) -> dict[str, fl
     due = ts.replace(iteration=jnp.zeros_like(ts.iteration))
     matching = jax.jit(agent.curriculum_goals)
     held = best_seconds(jax.jit(collect_held_goals), (ts, key), repeats)
+    one_step_updates = best_seconds(sac_one_step, (ts, key), repeats)
+    n_step_updates = (
+        best_seconds(sac_updates, (ts, key), repeats) if cfg.her.n_step > 1 else one_step_updates
+    )
     parts = {
         "env steps": held,
         "goal choice": best_seconds(collect, (ts, key), repeats) - held,
-        "SAC updates": best_seconds(sac_updates, (ts, key), repeats),
+        "SAC updates": one_step_updates,
+        "n-step rewards": n_step_updates - one_step_updates,
         "classifier updates": best_seconds(classifier_updates, (ts, key), repeats),
         "curriculum": best_seconds(matching, (due, key), repeats) / sched.rematch_every,
     }
