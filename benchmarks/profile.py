@@ -77,11 +77,11 @@ def part_seconds(cfg: config.TrainConfig, env, repeats: int = 3) -> dict[str, fl
         return rollout.collect(env, actor, keep_goal, goals, cfg.num_envs, key, switch_every)
 
     n_blocks = sched.sac_updates // sac.block_size(cfg.sac)
-    one_step = trainer.Agent(
-        dataclasses.replace(cfg, her=dataclasses.replace(cfg.her, n_step=1)), env
-    )
-    sac_one_step = jax.jit(lambda ts, key: one_step.sac_blocks(ts, n_blocks, key))
-    sac_updates = jax.jit(lambda ts, key: agent.sac_blocks(ts, n_blocks, key))
+
+    def sac_seconds(sac_agent: trainer.Agent) -> float:
+        updates = jax.jit(lambda ts, key: sac_agent.sac_blocks(ts, n_blocks, key))
+        return best_seconds(updates, (ts, key), repeats)
+
     classifier_updates = jax.jit(
         lambda ts, key: jax.lax.scan(
             agent.classifier_update, ts, jax.random.split(key, sched.classifier_updates)
@@ -91,10 +91,12 @@ def part_seconds(cfg: config.TrainConfig, env, repeats: int = 3) -> dict[str, fl
     due = ts.replace(iteration=jnp.zeros_like(ts.iteration))
     matching = jax.jit(agent.curriculum_goals)
     held = best_seconds(jax.jit(collect_held_goals), (ts, key), repeats)
-    one_step_updates = best_seconds(sac_one_step, (ts, key), repeats)
-    n_step_updates = (
-        best_seconds(sac_updates, (ts, key), repeats) if cfg.her.n_step > 1 else one_step_updates
-    )
+    if cfg.her.n_step == 1:
+        one_step_updates = n_step_updates = sac_seconds(agent)
+    else:
+        one_step_cfg = dataclasses.replace(cfg, her=dataclasses.replace(cfg.her, n_step=1))
+        one_step_updates = sac_seconds(trainer.Agent(one_step_cfg, env))
+        n_step_updates = sac_seconds(agent)
     parts = {
         "env steps": held,
         "goal choice": best_seconds(collect, (ts, key), repeats) - held,
