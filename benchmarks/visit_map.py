@@ -1,7 +1,7 @@
 """Where a run's agent has been, per cell, and what its classifier makes of it.
 
     python -m benchmarks.visit_map RUN_DIR [--seed-index 0] [--per-head] [--her-goals]
-        [--reach N]
+        [--reach N] [--rematch BETA [BETA ...]]
 
 Reads the run's newest checkpoint and prints three maps side by side, over the maze's
 layout (mazes, Ant) or the table cut into 0.1 squares seen from above (Sawyer; scored at
@@ -29,6 +29,14 @@ success within the radius at any step) that reach that cell's centre as the goal
 leaves the success radius around its start (the policy stands still for that goal). Set
 beside the visits, it tells cells the agent has been to from cells its goal-conditioned
 policy can reach on demand, and the goals it does not even try for.
+
+`--rematch BETA ...` runs the checkpoint's curriculum matching (SPEC §5) again with the
+goal-value weight set to each BETA (`curriculum.goal_value_weight`, 0 = SPEC's cost) and
+draws where the K curriculum goals land, one map per mode that the slots serve (slot j
+serves mode j mod n_modes): the number of goals in each cell (`+` for 10 or more), and
+the paper's `curriculum/distance`. Three matchings per BETA (different noise keys). It
+asks whether a curriculum sends each mode's slots towards that mode or, as on the Ant
+(benchmarks/RESULTS.md, stop 68), the slots of every mode to the newest frontier.
 """
 
 from __future__ import annotations
@@ -209,6 +217,45 @@ def her_goals_from_start(
     return (totals[:-1] / max(int(from_start.sum()), 1)).reshape(n_rows, n_cols)
 
 
+def draw_goal_counts(layout, counts: np.ndarray) -> list[str]:
+    """One string per row: the number of goals per cell (1-9, `+` for 10 or more), the
+    layout's `#` or `.` where none lies."""
+    return [
+        "".join(
+            ("+" if n >= 10 else str(n)) if n else ch for ch, n in zip(row, counts_row, strict=True)
+        )
+        for row, counts_row in zip(layout, counts, strict=True)
+    ]
+
+
+def goal_counts_per_mode(grid: Grid, goals: np.ndarray, n_modes: int) -> list[np.ndarray]:
+    """Per mode k, (rows, cols) counts of the goals (K, d) of the slots j = k mod n_modes
+    (SPEC §5: slot j holds a desired example of mode j mod n_modes)."""
+    return [grid_counts(grid, goals[k::n_modes]) for k in range(n_modes)]
+
+
+def rematch(cfg, env, ts, goal_value_weight: float, keys) -> list[tuple[np.ndarray, float]]:
+    """The curriculum of checkpoint `ts` matched again with `goal_value_weight` as beta,
+    once per key: [(goals (K, d), curriculum/distance)]. Only the matching's weight
+    changes; the pool, the classifier and the critic are the checkpoint's."""
+    import dataclasses
+
+    import jax.numpy as jnp
+
+    from d2c_jax.training import agent as agent_lib
+
+    curriculum = dataclasses.replace(cfg.curriculum, goal_value_weight=goal_value_weight)
+    new_cfg = dataclasses.replace(cfg, curriculum=curriculum)
+    agent = agent_lib.Agent(new_cfg, env)
+    hparams = jax.tree.map(jnp.asarray, agent_lib.hyperparams(new_cfg))
+    match = jax.jit(agent.match)
+    out = []
+    for key in keys:
+        goals, metrics, _ = match(ts.replace(hparams=hparams), key)
+        out.append((np.asarray(goals), float(metrics["curriculum/distance"])))
+    return out
+
+
 def draw_reach(rates: np.ndarray) -> list[str]:
     """One string per row: 10 x rate (0-9), `A` where every episode reached, `#` at NaN."""
     return [
@@ -232,11 +279,21 @@ def main(argv=None) -> int:
     parser.add_argument(
         "--reach", type=int, default=0, metavar="N", help="reach map, N episodes per cell"
     )
+    parser.add_argument(
+        "--rematch",
+        type=float,
+        nargs="+",
+        default=[],
+        metavar="BETA",
+        help="match the curriculum again with each goal-value weight; goals per cell and mode",
+    )
     args = parser.parse_args(argv)
     try:
         if args.reach < 0:
             raise runs.RunError(f"--reach must be >= 0 episodes per cell, got {args.reach}", 2)
         cfg, env, ts = runs.load_one_run(args.run, args.seed_index)
+        if args.rematch and cfg.algo != "d2c":
+            raise runs.RunError(f"--rematch needs a D2C run; {args.run} is --algo {cfg.algo}", 2)
     except runs.RunError as err:
         print(f"error: {err}", file=sys.stderr)
         return 2
@@ -299,6 +356,16 @@ def main(argv=None) -> int:
         maps = zip(draw_reach(rates), draw_reach(still), draw_counts(layout, every), strict=True)
         for a, b, c in maps:
             print(f"{a}   {b}   {c}")
+    for beta in args.rematch:
+        keys = jax.random.split(jax.random.key(args.seed_index), 3)
+        for goals, distance in rematch(cfg, env, ts, beta, keys):
+            per_mode = goal_counts_per_mode(grid, goals, env.n_modes)
+            print(
+                f"goals per cell, re-matched with beta {beta:g}, one map per mode "
+                f"(curriculum/distance {distance:.2f})"
+            )
+            for row in zip(*(draw_goal_counts(layout, c) for c in per_mode), strict=True):
+                print("   ".join(row))
     return 0
 
 

@@ -89,6 +89,21 @@ def test_visit_map_counts_points_per_cell_by_hand():
     assert visit_map.draw_scores(layout, scores, [(1, 1)])[1] == "0m090"
 
 
+def test_visit_map_goal_counts_per_mode_by_hand():
+    """Slot j serves mode j mod n_modes; counts are drawn 1-9, `+` from 10, layout elsewhere."""
+    from benchmarks import visit_map
+
+    layout = ("#####", "#.S.#", "#####")
+    grid = visit_map.layout_grid(layout, 4.0)
+    # cells of row 1 have centres x = -4, 0, 4 (y = 0); slots alternate modes 0 and 1
+    goals = np.array([[-4.0, 0.0], [4.0, 0.5], [-3.0, 1.0], [0.0, 0.0]] + [[-4.0, 0.0]] * 10)
+    per_mode = visit_map.goal_counts_per_mode(grid, goals, 2)
+    assert per_mode[0][1].tolist() == [0, 7, 0, 0, 0]  # slots 0, 2, 4, ..., 12: all at x = -4
+    assert per_mode[1][1].tolist() == [0, 5, 1, 1, 0]  # slots 1 (x 4), 3 (x 0), 5-13 (x -4)
+    assert visit_map.draw_goal_counts(layout, per_mode[1])[1] == "#511#"
+    assert visit_map.draw_goal_counts(layout, per_mode[0] * 2) == ["#####", "#+S.#", "#####"]
+
+
 def test_visit_map_her_goals_from_start_by_hand():
     """H = 2, phi(s) = x: 0.5, 0.5, then 4.5 (one cell right). Both transitions start in
     the start cell. t = 0 draws t' in {1, 2} (0.8 / 2 each), t = 1 draws t' = 2 (0.8):
@@ -202,6 +217,19 @@ def test_reward_probe_reports_every_distance_and_all_pairs(tmp_path, capsys):
     her = lines[lines.index(next(x for x in lines if x.startswith("HER future goals"))) + 1 :]
     assert len(her) == len(env.layout) and all(len(x) == 2 * width + 3 for x in her)
     assert her[0] == "#" * width + "   " + "#" * width  # the outer wall
+    # --rematch: each map block holds the K goals, K / n_modes per mode's map.
+    assert visit_map.main([str(tmp_path / "run"), "--rematch", "0", "1"]) == 0
+    lines = capsys.readouterr().out.splitlines()
+    heads = [i for i, x in enumerate(lines) if x.startswith("goals per cell, re-matched")]
+    assert len(heads) == 2 * 3 and "beta 1," in lines[heads[-1]]
+    k, n_modes = cfg.curriculum.n_slots, env.n_modes
+    for i in heads:
+        maps = [row.split("   ") for row in lines[i + 1 : i + 1 + len(env.layout)]]
+        # the tiny preset has fewer than 10 slots per mode, so every count is one digit
+        per_mode = [
+            sum(int(ch) for row in maps for ch in row[m] if ch.isdigit()) for m in range(n_modes)
+        ]
+        assert per_mode == [k // n_modes] * n_modes, (lines[i], maps)
 
 
 def test_paired_ratio_is_the_median_of_back_to_back_ratios_by_hand():
