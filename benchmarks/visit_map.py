@@ -236,8 +236,10 @@ def goal_counts_per_mode(grid: Grid, goals: np.ndarray, n_modes: int) -> list[np
 
 def rematch(cfg, env, ts, goal_value_weight: float, keys) -> list[tuple[np.ndarray, float]]:
     """The curriculum of checkpoint `ts` matched again with `goal_value_weight` as beta,
-    once per key: [(goals (K, d), curriculum/distance)]. Only the matching's weight
-    changes; the pool, the classifier and the critic are the checkpoint's."""
+    once per key: [(goals (K, d), curriculum/distance)]. Only beta changes (in the config,
+    so that the program computes the value term, and in the run's traced hyperparameters,
+    whose other values stay the run's own); the pool, the classifier and the critic are
+    the checkpoint's."""
     import dataclasses
 
     import jax.numpy as jnp
@@ -245,13 +247,14 @@ def rematch(cfg, env, ts, goal_value_weight: float, keys) -> list[tuple[np.ndarr
     from d2c_jax.training import agent as agent_lib
 
     curriculum = dataclasses.replace(cfg.curriculum, goal_value_weight=goal_value_weight)
-    new_cfg = dataclasses.replace(cfg, curriculum=curriculum)
-    agent = agent_lib.Agent(new_cfg, env)
-    hparams = jax.tree.map(jnp.asarray, agent_lib.hyperparams(new_cfg))
+    agent = agent_lib.Agent(dataclasses.replace(cfg, curriculum=curriculum), env)
+    hp = ts.hparams.replace(
+        curriculum=ts.hparams.curriculum.replace(goal_value_weight=jnp.float32(goal_value_weight))
+    )
     match = jax.jit(agent.match)
     out = []
     for key in keys:
-        goals, metrics, _ = match(ts.replace(hparams=hparams), key)
+        goals, metrics, _ = match(ts.replace(hparams=hp), key)
         out.append((np.asarray(goals), float(metrics["curriculum/distance"])))
     return out
 
