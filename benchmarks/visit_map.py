@@ -251,10 +251,10 @@ def rematch(cfg, env, ts, goal_value_weight: float, keys) -> list[tuple[np.ndarr
     hp = ts.hparams.replace(
         curriculum=ts.hparams.curriculum.replace(goal_value_weight=jnp.float32(goal_value_weight))
     )
-    match = jax.jit(agent.match)
+    match, ts = jax.jit(agent.match), ts.replace(hparams=hp)
     out = []
     for key in keys:
-        goals, metrics, _ = match(ts.replace(hparams=hp), key)
+        goals, metrics, _ = match(ts, key)
         out.append((np.asarray(goals), float(metrics["curriculum/distance"])))
     return out
 
@@ -359,9 +359,9 @@ def main(argv=None) -> int:
         maps = zip(draw_reach(rates), draw_reach(still), draw_counts(layout, every), strict=True)
         for a, b, c in maps:
             print(f"{a}   {b}   {c}")
+    rematch_keys = jax.random.split(jax.random.key(args.seed_index), 3)  # the same for every beta
     for beta in args.rematch:
-        keys = jax.random.split(jax.random.key(args.seed_index), 3)
-        for goals, distance in rematch(cfg, env, ts, beta, keys):
+        for goals, distance in rematch(cfg, env, ts, beta, rematch_keys):
             per_mode = goal_counts_per_mode(grid, goals, env.n_modes)
             print(
                 f"goals per cell, re-matched with beta {beta:g}, one map per mode "
