@@ -64,8 +64,15 @@ def _config_json(out) -> dict:
 
 
 @pytest.mark.parametrize("algo", _TRAINED_ONCE_HERE)
-def test_baseline_trains_tiny_on_medium_maze(algo, tmp_path, undocumented_metrics):
+def test_baseline_trains_tiny_on_medium_maze(algo, tmp_path, undocumented_metrics, capsys):
     _check_baseline_run("medium_maze", algo, tmp_path / "run", undocumented_metrics)
+    if algo == "her":  # a probe that re-runs D2C's matching refuses a run without one
+        from benchmarks import visit_map
+
+        capsys.readouterr()
+        assert visit_map.main([str(tmp_path / "run"), "--rematch", "1"]) == 2
+        first = capsys.readouterr().err.splitlines()[0]
+        assert first.startswith("error: --rematch needs a D2C run") and "--algo her" in first
 
 
 @pytest.mark.slow
