@@ -2,6 +2,7 @@
 paired ratio) and the brax SAC timing harness."""
 
 import functools
+import json
 
 import jax
 import jax.numpy as jnp
@@ -490,3 +491,29 @@ def test_run_probes_share_the_exit_2_contract(probe, argv, message, capsys):
     assert module.main(argv) == 2
     first = capsys.readouterr().err.splitlines()[0]
     assert first.startswith("error: ") and message in first
+
+
+def test_same_metrics_compares_all_but_time_keys(tmp_path, capsys):
+    import gzip
+
+    from benchmarks import same_metrics
+
+    rows = [{"iteration": i, "env_steps": 10 * i, "a": i / 3, "time/x": i} for i in (1, 2, 3)]
+    run = tmp_path / "run"
+    run.mkdir()
+    (run / "metrics.jsonl").write_text("".join(json.dumps(r) + "\n" for r in rows))
+    # The reference: other wall-clock values, one row fewer, stored gzipped.
+    ref_rows = [{**r, "time/x": 99} for r in rows[:2]]
+    ref = tmp_path / "ref.jsonl.gz"
+    with gzip.open(ref, "wt") as f:
+        f.writelines(json.dumps(r) + "\n" for r in ref_rows)
+    assert same_metrics.main([str(run), str(ref)]) == 0
+    assert capsys.readouterr().out.strip() == "identical: 2 rows (iterations 1-2)"
+    # A value and a missing key in iteration 2 are both named.
+    other = tmp_path / "other.jsonl"
+    changed = [ref_rows[0], {"iteration": 2, "env_steps": 20, "b": 1.0}]
+    other.write_text("".join(json.dumps(r) + "\n" for r in changed))
+    assert same_metrics.main([str(run), str(other)]) == 1
+    assert capsys.readouterr().out.strip() == "differ: iteration 2 (2 keys: a, b)"
+    assert same_metrics.main([str(run), str(tmp_path / "missing")]) == 2
+    assert capsys.readouterr().err.startswith("error: no metrics file at ")
