@@ -517,3 +517,7 @@ def test_same_metrics_compares_all_but_time_keys(tmp_path, capsys):
     assert capsys.readouterr().out.strip() == "differ: iteration 2 (2 keys: a, b)"
     assert same_metrics.main([str(run), str(tmp_path / "missing")]) == 2
     assert capsys.readouterr().err.startswith("error: no metrics file at ")
+    later = tmp_path / "later.jsonl"
+    later.write_text(json.dumps({"iteration": 9, "env_steps": 90}) + "\n")
+    assert same_metrics.main([str(run), str(later)]) == 2
+    assert capsys.readouterr().err.startswith("error: no iteration in common between ")
