@@ -3,6 +3,8 @@
     python -m benchmarks.actor_probe RUN_DIR [--episodes 8] [--seed-index 0] \
         -- "X,Y[,Z];X,Y[,Z]..."
 
+    python -m benchmarks.actor_probe RUN_DIR --route [--episodes 8] -- "X,Y;X,Y..."
+
 (the `--` lets the points start with a minus sign).
 
 Per goal, over N deterministic episodes from the start state with its reset noise (SPEC
@@ -18,6 +20,13 @@ Per goal, over N deterministic episodes from the start state with its reset nois
 An ant that stands still for a goal holds nearly one action (std/t near 0); where that
 action is saturated, tanh leaves neither the critic's gradient nor the exploration noise
 any hold on it (benchmarks/RESULTS.md, stop 62).
+
+With `--route` the points are waypoints of one route instead: each episode starts with the
+first as its goal and switches to the next one when it reaches it (the last stays). Per
+waypoint: the share of episodes that got there, and the mean env step of the arrival,
+counted from the episode's start. Whether the actor's walk along cells it can reach
+is fast enough for a goal farther away, apart from whether it goes for that goal at all.
+A diagnostic only: no run ever gives its agent waypoints.
 """
 
 from __future__ import annotations
@@ -29,6 +38,8 @@ from typing import NamedTuple
 import jax
 import jax.numpy as jnp
 import numpy as np
+
+from envs import goal_distance
 
 SATURATED = 0.95
 """|a| above which an action component counts as saturated (tanh(1.83))."""
@@ -110,6 +121,83 @@ def probe(
     return rows
 
 
+class RouteRow(NamedTuple):
+    waypoint: np.ndarray  # (goal_dim,)
+    reach: float
+    """Share of the episodes that reached this waypoint (so every one before it too)."""
+    step: float
+    """Env step of the first arrival (1-based, from the episode's start), mean over the
+    episodes that arrive; nan if none does."""
+
+
+def check_route(route: np.ndarray, radius: float) -> None:
+    """Raise ValueError unless every two waypoints of `route` (n, goal_dim) lie more than
+    2 `radius` apart, so that the waypoint an agent has just reached is the one nearest
+    to it (what `route_switch` relies on)."""
+    gaps = np.linalg.norm(route[:, None] - route[None], axis=-1)
+    gaps[np.diag_indices(len(route))] = np.inf
+    i, j = np.unravel_index(np.argmin(gaps), gaps.shape)
+    if len(route) > 1 and gaps[i, j] <= 2 * radius:
+        raise ValueError(
+            f"route waypoints must lie more than 2 success radii ({2 * radius:g}) apart; "
+            f"waypoints {i} and {j} are {gaps[i, j]:.3g} apart"
+        )
+
+
+def route_switch(route: jax.Array):
+    """A `rollout.GoalSwitch` that follows `route` (n, goal_dim): the waypoint after the
+    one nearest the achieved goal, the last one staying. Called on success, the nearest is
+    the waypoint just reached (`check_route`)."""
+
+    def next_goal(achieved_goal: jax.Array, key: jax.Array) -> jax.Array:
+        nearest = jnp.argmin(goal_distance(route, achieved_goal))
+        return route[jnp.minimum(nearest + 1, route.shape[0] - 1)]
+
+    return next_goal
+
+
+def probe_route(env, policy, route: np.ndarray, episodes: int, key) -> list[RouteRow]:
+    """One `RouteRow` per waypoint of `route` (n, goal_dim), over `episodes` episodes that
+    start with the first waypoint as their goal (checked with `check_route`).
+
+    Args:
+      env: the environment; policy: a `rollout.Policy` (pass the deterministic actor).
+      key: PRNG key (reset noise).
+    """
+    from d2c_jax.core import rollout
+
+    route = np.asarray(route, np.float32)
+    check_route(route, env.success_radius)
+    switch = route_switch(jnp.asarray(route))
+
+    def play(start, k):
+        record = lambda before, action, after: (after.goal, after.success)  # noqa: E731
+        _, records = rollout.run(env, policy, start, k, record=record, next_goal=switch)
+        return records
+
+    start = np.repeat(route[:1], episodes, axis=0)
+    goal, success = (np.asarray(x) for x in jax.jit(play)(start, key))  # (n, T, d), (n, T)
+    # The waypoint each step pursued: the goals are the route's points themselves.
+    pursued = np.argmin(np.linalg.norm(goal[:, :, None] - route[None, None], axis=-1), axis=-1)
+    rows = []
+    for i, waypoint in enumerate(route):
+        arrived = success & (pursued == i)  # (n, T)
+        hit = arrived.any(axis=1)
+        first_step = np.argmax(arrived, axis=1) + 1
+        step = float(first_step[hit].mean()) if hit.any() else np.nan
+        rows.append(RouteRow(waypoint=waypoint, reach=float(hit.mean()), step=step))
+    return rows
+
+
+def format_route_rows(rows: list[RouteRow]) -> list[str]:
+    """A header and one line per waypoint."""
+    lines = ["waypoint              reach  arrival step"]
+    for r in rows:
+        point = ",".join(f"{v:g}" for v in r.waypoint)
+        lines.append(f"{point:20s}  {r.reach:5.2f}  {r.step:12.0f}")
+    return lines
+
+
 def format_rows(rows: list[GoalRow]) -> list[str]:
     """A header and one line per goal."""
     lines = ["goal                  reach  steps   path  saturated  std/t  |u| s_0 max / mean"]
@@ -129,6 +217,9 @@ def main(argv=None) -> int:
 
     parser = run_args.probe_parser(__doc__, episodes=8)
     parser.add_argument("goals", help='goal points as "x,y;x,y" (the env\'s goal space)')
+    parser.add_argument(
+        "--route", action="store_true", help="the points are waypoints of one route, in order"
+    )
     args = parser.parse_args(argv)
     try:
         run_args.check_episodes(args.episodes)
@@ -143,6 +234,11 @@ def main(argv=None) -> int:
                 f"got {goals.shape[1]}",
                 2,
             )
+        if args.route:
+            try:
+                check_route(goals, env.success_radius)
+            except ValueError as err:
+                raise runs.RunError(str(err), 2) from None
     except runs.RunError as err:
         print(f"error: {err}", file=sys.stderr)
         return 2
@@ -153,6 +249,11 @@ def main(argv=None) -> int:
         return nets.actor.apply(ts.sac.actor_params, feats)[0]
 
     policy = sac.make_policy(nets, ts.sac, env, deterministic=True)
+    if args.route:
+        rows = probe_route(env, policy, goals, args.episodes, jax.random.key(1))
+        print(f"{args.run}: {int(ts.env_steps):,} env steps, {args.episodes} episodes, one route")
+        print("\n".join(format_route_rows(rows)))
+        return 0
     rows = probe(env, policy, pre_tanh_mean, goals, args.episodes, jax.random.key(1))
     print(f"{args.run}: {int(ts.env_steps):,} env steps, {args.episodes} episodes per goal")
     print("\n".join(format_rows(rows)))

@@ -73,6 +73,19 @@ def test_baseline_trains_tiny_on_medium_maze(algo, tmp_path, undocumented_metric
         assert visit_map.main([str(tmp_path / "run"), "--rematch", "1"]) == 2
         first = capsys.readouterr().err.splitlines()[0]
         assert first.startswith("error: --rematch needs a D2C run") and "--algo her" in first
+        # The actor probe's route mode on a real run: waypoints one radius apart are refused.
+        from benchmarks import actor_probe
+
+        route = ["--route", "--episodes", "1", "--", "4,0;4,0.5"]
+        assert actor_probe.main([str(tmp_path / "run"), *route]) == 2
+        first = capsys.readouterr().err.splitlines()[0]
+        assert first.startswith("error: route waypoints must lie more than 2 success radii")
+        route[-1] = "4,0;8,0"
+        assert actor_probe.main([str(tmp_path / "run"), *route]) == 0
+        out = capsys.readouterr().out.splitlines()
+        assert out[1].startswith("waypoint") and [line.split()[0] for line in out[2:]] == [
+            "4,0", "8,0"
+        ]  # fmt: skip
 
 
 @pytest.mark.slow

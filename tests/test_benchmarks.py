@@ -459,6 +459,39 @@ def test_actor_probe_of_a_policy_that_runs_right(medium_maze):
     assert len(actor_probe.format_rows(rows)) == 3
 
 
+def test_actor_probe_route_of_a_policy_that_runs_right(medium_maze):
+    """Full speed along +x through waypoints (4, 0), (8, 0), (8, 8): it arrives at the first
+    at step 4 (x_0 + k >= 3.5 first at k = 4 for x_0 in [-0.1, 0.1]) and, switching goals
+    there, at the second at step 8; never at the third, off its line."""
+    import jax
+    import jax.numpy as jnp
+
+    from benchmarks import actor_probe
+
+    go_right = lambda obs, goal, key: jnp.array([1.0, -obs[2]])  # noqa: E731
+    route = np.array([[4.0, 0.0], [8.0, 0.0], [8.0, 8.0]])
+    rows = actor_probe.probe_route(medium_maze, go_right, route, 2, jax.random.key(0))
+    assert [r.reach for r in rows] == [1.0, 1.0, 0.0]
+    assert rows[0].step == 4 and rows[1].step == 8 and np.isnan(rows[2].step)
+    assert len(actor_probe.format_route_rows(rows)) == 4
+
+
+def test_actor_probe_route_switch_and_check_by_hand():
+    import jax.numpy as jnp
+
+    from benchmarks import actor_probe
+
+    route = jnp.array([[0.0, 0.0], [4.0, 0.0], [4.0, 4.0]])
+    switch = actor_probe.route_switch(route)
+    # Near a waypoint: the next one; near the last: the last again.
+    np.testing.assert_array_equal(switch(jnp.array([0.3, 0.2]), None), [4.0, 0.0])
+    np.testing.assert_array_equal(switch(jnp.array([4.2, 0.1]), None), [4.0, 4.0])
+    np.testing.assert_array_equal(switch(jnp.array([3.9, 4.4]), None), [4.0, 4.0])
+    actor_probe.check_route(np.asarray(route), radius=1.9)  # gaps 4, 4, 5.66 > 3.8
+    with pytest.raises(ValueError, match="waypoints 0 and 1 are 4 apart"):
+        actor_probe.check_route(np.asarray(route), radius=2.0)
+
+
 @pytest.mark.parametrize(
     "argv, message",
     [
