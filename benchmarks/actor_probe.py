@@ -24,8 +24,8 @@ any hold on it (benchmarks/RESULTS.md, stop 62).
 With `--route` the points are waypoints of one route instead: each episode starts with the
 first as its goal and switches to the next one when it reaches it (the last stays). Per
 waypoint: the share of episodes that got there, and the mean env step of the arrival,
-counted from the episode's start. Whether the actor's walk along cells it can reach
-is fast enough for a goal farther away, apart from whether it goes for that goal at all.
+counted from the episode's start. It tells whether the actor's walk along cells it can
+reach is fast enough for a goal farther away, apart from whether it goes for that goal.
 A diagnostic only: no run ever gives its agent waypoints.
 """
 
