@@ -62,6 +62,14 @@ def action_stats(actions: np.ndarray) -> ActionStats:
     )
 
 
+def arrival(success: np.ndarray) -> tuple[float, float]:
+    """(n, T) bool success after each step of n episodes -> (the share of episodes with
+    any success, the mean 1-based step of the first one over those episodes, nan if none)."""
+    hit = success.any(axis=1)
+    first_step = np.argmax(success, axis=1) + 1
+    return float(hit.mean()), float(first_step[hit].mean()) if hit.any() else np.nan
+
+
 class GoalRow(NamedTuple):
     goal: np.ndarray  # (goal_dim,)
     reach: float
@@ -102,16 +110,15 @@ def probe(
         return action, success, length, u
 
     action, success, length, u = (np.asarray(x) for x in jax.jit(play)(repeated, key))
-    hit = success.any(axis=1)
-    first_step = np.argmax(success, axis=1) + 1  # (n·episodes,) 1-based; 1 where never
     rows = []
     for i, goal in enumerate(goals):
         mine = slice(i * episodes, (i + 1) * episodes)
+        reach, steps = arrival(success[mine])
         rows.append(
             GoalRow(
                 goal=goal,
-                reach=float(hit[mine].mean()),
-                steps=float(first_step[mine][hit[mine]].mean()) if hit[mine].any() else np.nan,
+                reach=reach,
+                steps=steps,
                 path=float(length[mine].mean()),
                 stats=action_stats(action[mine]),
                 u_max=float(np.abs(u[mine]).max()),
@@ -181,11 +188,8 @@ def probe_route(env, policy, route: np.ndarray, episodes: int, key) -> list[Rout
     pursued = np.argmin(np.linalg.norm(goal[:, :, None] - route[None, None], axis=-1), axis=-1)
     rows = []
     for i, waypoint in enumerate(route):
-        arrived = success & (pursued == i)  # (n, T)
-        hit = arrived.any(axis=1)
-        first_step = np.argmax(arrived, axis=1) + 1
-        step = float(first_step[hit].mean()) if hit.any() else np.nan
-        rows.append(RouteRow(waypoint=waypoint, reach=float(hit.mean()), step=step))
+        reach, step = arrival(success & (pursued == i))
+        rows.append(RouteRow(waypoint=waypoint, reach=reach, step=step))
     return rows
 
 
