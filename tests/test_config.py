@@ -201,6 +201,18 @@ def test_defaults_are_medium_maze_s_paper_preset_and_unknown_env_raises():
         config.preset("nope", "tiny")
 
 
+def test_presets_are_importable_from_config_and_other_names_are_not():
+    """presets.py owns the presets; config re-exports them (the contract's path), and only
+    them: a misspelt name is still an AttributeError."""
+    from d2c_jax import presets
+
+    for name in config._PRESET_EXPORTS:
+        assert getattr(config, name) is getattr(presets, name)
+    assert config.preset("ant", "quick") == presets.quick_preset("ant")
+    with pytest.raises(AttributeError, match="no attribute 'quick_presets'"):
+        config.quick_presets  # noqa: B018
+
+
 @pytest.mark.parametrize("env", ["ant", "sawyer_push"])
 @pytest.mark.parametrize("name", config.PRESET_NAMES)
 def test_old_config_json_loads_as_its_run_ran(env, name):

@@ -22,6 +22,7 @@ import types
 import typing
 
 from d2c_jax import config as config_lib
+from d2c_jax import presets
 from d2c_jax.training import validation
 
 
@@ -392,10 +393,10 @@ def _preset_config(known: argparse.Namespace, notify) -> config_lib.TrainConfig:
         if notice:
             notify(notice)
     try:
-        cfg = config_lib.preset(known.env, preset_name)
+        cfg = presets.preset(known.env, preset_name)
         # The algo's fixed settings come before the overrides, so a flag that conflicts
         # with them is seen (and refused by `validation`) rather than overwritten.
-        return config_lib.with_algo(cfg, known.algo or "d2c")
+        return presets.with_algo(cfg, known.algo or "d2c")
     except ValueError as err:
         raise UsageError(str(err)) from None
 
