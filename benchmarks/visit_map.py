@@ -267,10 +267,8 @@ def draw_reach(rates: np.ndarray) -> list[str]:
     ]
 
 
-def main(argv=None) -> int:
+def _parser():
     from benchmarks import run_args
-    from d2c_jax.curricula import classifier
-    from d2c_jax.training import runs
 
     parser = run_args.probe_parser(__doc__)
     parser.add_argument("--per-head", action="store_true", help="each head's map per mode")
@@ -290,7 +288,88 @@ def main(argv=None) -> int:
         metavar="BETA",
         help="match the curriculum again with each goal-value weight; goals per cell and mode",
     )
-    args = parser.parse_args(argv)
+    return parser
+
+
+def _print_side_by_side(*maps: list[str]) -> None:
+    """Rows of equally tall maps, printed next to each other."""
+    for row in zip(*maps, strict=True):
+        print("   ".join(row))
+
+
+def _print_visits_and_scores(run, env, ts, grid, ag, every, net, modes) -> None:
+    """Visits, curriculum-phase visits and 10 x max_k p_pseudo(cell; g_k), side by side."""
+    from d2c_jax.curricula import classifier
+
+    layout = grid.layout
+    rp = jax.tree.map(np.asarray, ts.replay)
+    phase = np.arange(ag.shape[1])[None] <= rp.walk_start[: int(rp.size), None]
+    goal_points = np.asarray(env.goal_points)
+    p = classifier.p_pseudo(net, ts.classifier.params, grid.centres[:, None], goal_points[None])
+    scores = np.asarray(p).max(axis=-1).reshape(len(layout), len(layout[0]))
+    print(f"{run}: {ag.shape[0]} episodes, {int(ts.env_steps):,} env steps")
+    print("visits (log10)   curriculum phase   10 x p_pseudo")
+    _print_side_by_side(
+        draw_counts(layout, every),
+        draw_counts(layout, grid_counts(grid, ag[phase])),
+        draw_scores(layout, scores, modes),
+    )
+
+
+def _print_heads(env, ts, grid, net, modes) -> None:
+    """Each head's map per mode (--per-head)."""
+    layout = grid.layout
+    for k, goal in enumerate(np.asarray(env.goal_points)):
+        heads = head_maps(net, ts.classifier.params, grid, goal)
+        print(f"mode {k} at {tuple(round(float(v), 3) for v in goal)}: 10 x f_i(cell; g_{k})")
+        print("   ".join(f"head {i}".ljust(len(layout[0])) for i in range(len(heads))))
+        _print_side_by_side(*(draw_scores(layout, h, modes) for h in heads))
+
+
+def _print_her_goals(cfg, env, grid, ag, every) -> None:
+    """Where HER's future goals land for transitions starting in the start cell (--her-goals)."""
+    min_distance = cfg.her.min_future_radii * env.success_radius
+    per_start = her_goals_from_start(grid, ag, cfg.her.relabel_prob, min_distance)
+    print(
+        "HER future goals per 10^6 transitions that start in their episode's start "
+        "cell (log10), visits (log10)"
+    )
+    _print_side_by_side(
+        draw_counts(grid.layout, np.floor(1e6 * per_start)), draw_counts(grid.layout, every)
+    )
+
+
+def _print_reach(cfg, env, ts, grid, every, episodes: int, seed_index: int) -> None:
+    """Reach and standing-still shares with each cell as the goal (--reach N)."""
+    from d2c_jax.training import agent as agent_lib
+
+    policy = agent_lib.Agent(cfg, env).policy(ts.sac, deterministic=True)
+    rates, still = reach_rates(env, policy, grid, episodes, jax.random.key(seed_index))
+    print(
+        f"10 x reach rate, 10 x share standing still ({episodes} deterministic "
+        "episodes per cell as the goal), visits (log10)"
+    )
+    _print_side_by_side(draw_reach(rates), draw_reach(still), draw_counts(grid.layout, every))
+
+
+def _print_rematches(cfg, env, ts, grid, betas, seed_index: int) -> None:
+    """Goals per cell and mode of the curriculum matched again with each beta (--rematch)."""
+    keys = jax.random.split(jax.random.key(seed_index), 3)  # the same for every beta
+    for beta in betas:
+        for goals, distance in rematch(cfg, env, ts, beta, keys):
+            per_mode = goal_counts_per_mode(grid, goals, env.n_modes)
+            print(
+                f"goals per cell, re-matched with beta {beta:g}, one map per mode "
+                f"(curriculum/distance {distance:.2f})"
+            )
+            _print_side_by_side(*(draw_goal_counts(grid.layout, c) for c in per_mode))
+
+
+def main(argv=None) -> int:
+    from d2c_jax.curricula import classifier
+    from d2c_jax.training import runs
+
+    args = _parser().parse_args(argv)
     try:
         if args.reach < 0:
             raise runs.RunError(f"--reach must be >= 0 episodes per cell, got {args.reach}", 2)
@@ -301,74 +380,19 @@ def main(argv=None) -> int:
         print(f"error: {err}", file=sys.stderr)
         return 2
     grid = env_grid(env)
-    layout = grid.layout
-    rp = jax.tree.map(np.asarray, ts.replay)
-    ag = rp.achieved_goal[: int(rp.size)]  # (episodes, H + 1, goal_dim)
-    phase = np.arange(ag.shape[1])[None] <= rp.walk_start[: int(rp.size), None]
+    ag = np.asarray(ts.replay.achieved_goal)[: int(ts.replay.size)]  # (episodes, H + 1, d)
     every = grid_counts(grid, ag.reshape(-1, ag.shape[-1]))
-    curriculum_phase = grid_counts(grid, ag[phase])
     net = classifier.make_classifier(cfg.classifier, env)
-    params = ts.classifier.params
-    goal_points = np.asarray(env.goal_points)
-    p = classifier.p_pseudo(net, params, grid.centres[:, None], goal_points[None])
-    scores = np.asarray(p).max(axis=-1).reshape(len(layout), len(layout[0]))
-    mode_rows, mode_cols = grid.cell_of(goal_points[:, :2].astype(np.float64))
+    mode_rows, mode_cols = grid.cell_of(np.asarray(env.goal_points)[:, :2].astype(np.float64))
     modes = list(zip(mode_rows.tolist(), mode_cols.tolist(), strict=True))
-    print(f"{args.run}: {ag.shape[0]} episodes, {int(ts.env_steps):,} env steps")
-    print("visits (log10)   curriculum phase   10 x p_pseudo")
-    maps = zip(
-        draw_counts(layout, every),
-        draw_counts(layout, curriculum_phase),
-        draw_scores(layout, scores, modes),
-        strict=True,
-    )
-    for a, b, c in maps:
-        print(f"{a}   {b}   {c}")
+    _print_visits_and_scores(args.run, env, ts, grid, ag, every, net, modes)
     if args.per_head:
-        for k, goal in enumerate(goal_points):
-            heads = head_maps(net, params, grid, goal)
-            print(f"mode {k} at {tuple(round(float(v), 3) for v in goal)}: 10 x f_i(cell; g_{k})")
-            print("   ".join(f"head {i}".ljust(len(layout[0])) for i in range(len(heads))))
-            drawn = [draw_scores(layout, h, modes) for h in heads]
-            for row in zip(*drawn, strict=True):
-                print("   ".join(row))
+        _print_heads(env, ts, grid, net, modes)
     if args.her_goals:
-        per_start = her_goals_from_start(
-            grid, ag, cfg.her.relabel_prob, cfg.her.min_future_radii * env.success_radius
-        )
-        print(
-            "HER future goals per 10^6 transitions that start in their episode's start "
-            "cell (log10), visits (log10)"
-        )
-        maps = zip(
-            draw_counts(layout, np.floor(1e6 * per_start)),
-            draw_counts(layout, every),
-            strict=True,
-        )
-        for a, b in maps:
-            print(f"{a}   {b}")
+        _print_her_goals(cfg, env, grid, ag, every)
     if args.reach:
-        from d2c_jax.training import agent as agent_lib
-
-        policy = agent_lib.Agent(cfg, env).policy(ts.sac, deterministic=True)
-        rates, still = reach_rates(env, policy, grid, args.reach, jax.random.key(args.seed_index))
-        print(
-            f"10 x reach rate, 10 x share standing still ({args.reach} deterministic "
-            "episodes per cell as the goal), visits (log10)"
-        )
-        maps = zip(draw_reach(rates), draw_reach(still), draw_counts(layout, every), strict=True)
-        for a, b, c in maps:
-            print(f"{a}   {b}   {c}")
-    rematch_keys = jax.random.split(jax.random.key(args.seed_index), 3)  # the same for every beta
-    for beta in args.rematch:
-        for goals, distance in rematch(cfg, env, ts, beta, rematch_keys):
-            per_mode = goal_counts_per_mode(grid, goals, env.n_modes)
-            print(
-                f"goals per cell, re-matched with beta {beta:g}, one map per mode "
-                f"(curriculum/distance {distance:.2f})"
-            )
-            for row in zip(*(draw_goal_counts(layout, c) for c in per_mode), strict=True):
-                print("   ".join(row))
+        _print_reach(cfg, env, ts, grid, every, args.reach, args.seed_index)
+    _print_rematches(cfg, env, ts, grid, args.rematch, args.seed_index)
     return 0
 
 
