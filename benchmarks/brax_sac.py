@@ -105,29 +105,15 @@ def epoch_rates(
     return rates[1:]
 
 
-def bare_update_ms(size: str, rounds: int, env_name: str = "medium_maze") -> dict[str, list]:
-    """Milliseconds per SAC update of brax's update and of ours alone, `rounds` alternating
-    rounds of BARE_UPDATES updates each on one fixed batch at SIZES[size]: name -> ms."""
+def _brax_bare_update(hidden, feat_dim: int, act_dim: int, transitions, key):
+    """brax's SAC update (alpha, critic and actor steps from the same parameters, then the
+    target) on one fixed batch of brax `transitions`, and its initial state."""
     import jax
     import jax.numpy as jnp
     import optax
-    from brax.training import gradients, types
+    from brax.training import gradients
     from brax.training.agents.sac import losses as sac_losses
     from brax.training.agents.sac import networks as sac_networks
-
-    from benchmarks.trainer import throughput_configs
-    from d2c_jax.core import networks, sac
-    from d2c_jax.core.types import Batch
-    from d2c_jax.training.agent import Agent
-
-    hidden, batch = SIZES[size]
-    cfg = throughput_configs(size, env_name)["SAC+HER"]
-    agent = Agent(cfg, envs.make(env_name))
-    env = agent.env
-    feat_dim, act_dim = networks.feature_dim(env), env.action_dim
-    keys = jax.random.split(jax.random.key(0), 4)
-    obs, next_obs = (jax.random.normal(k, (batch, feat_dim)) for k in keys[:2])
-    action = jnp.tanh(jax.random.normal(keys[2], (batch, act_dim)))
 
     nets = sac_networks.make_sac_networks(feat_dim, act_dim, hidden_layer_sizes=tuple(hidden))
     alpha_loss, critic_loss, actor_loss = sac_losses.make_losses(nets, 1.0, 0.99, act_dim)
@@ -136,12 +122,8 @@ def bare_update_ms(size: str, rounds: int, env_name: str = "medium_maze") -> dic
         gradients.gradient_update_fn(loss, adam, pmap_axis_name=None)
         for loss in (alpha_loss, critic_loss, actor_loss)
     )
-    zeros = jnp.zeros(batch)
-    transitions = types.Transition(
-        obs, action, zeros, jnp.ones(batch), next_obs, {"state_extras": {"truncation": zeros}}
-    )
 
-    def brax_update(s, key):
+    def update(s, key):
         k_alpha, k_critic, k_actor = jax.random.split(key, 3)
         alpha = jnp.exp(s["log_alpha"])
         _, log_alpha, alpha_opt = alpha_step(
@@ -158,42 +140,89 @@ def bare_update_ms(size: str, rounds: int, env_name: str = "medium_maze") -> dic
         new = dict(policy=policy, q=q, target_q=target_q, log_alpha=log_alpha)
         return {**new, "policy_opt": policy_opt, "q_opt": q_opt, "alpha_opt": alpha_opt}, None
 
-    policy, q = nets.policy_network.init(keys[3]), nets.q_network.init(keys[3])
-    brax_state = dict(
+    policy, q = nets.policy_network.init(key), nets.q_network.init(key)
+    state = dict(
         policy=policy, q=q, target_q=q, log_alpha=jnp.zeros(()),
         policy_opt=adam.init(policy), q_opt=adam.init(q), alpha_opt=adam.init(jnp.zeros(())),
     )  # fmt: skip
+    return update, state
 
+
+def _ours_bare_update(cfg, agent, action, key):
+    """Our SAC update (one block of one update, `sac.update_sac_block`) on one fixed batch
+    of random observations and goals with `action` (B, act_dim), and its initial state."""
+    import jax
+    import jax.numpy as jnp
+
+    from d2c_jax.core import sac
+    from d2c_jax.core.types import Batch
+
+    env, batch = agent.env, action.shape[0]
     # Only SAC's state: the agent's replay buffer (3M transitions) plays no part here.
     hp = sac.hyperparams(cfg.sac)
-    ours_state = sac.init_sac(agent.sac_nets, agent.sac_optimizers, env, hp, keys[3])
-    raw = jax.random.normal(keys[3], (batch, env.obs_dim + env.goal_dim))
-    ours_batch = jax.tree.map(  # one block of one update: leaves (1, B, ...)
+    state = sac.init_sac(agent.sac_nets, agent.sac_optimizers, env, hp, key)
+    raw = jax.random.normal(key, (batch, env.obs_dim + env.goal_dim))
+    zeros = jnp.zeros(batch)
+    one_block = jax.tree.map(  # leaves (1, B, ...)
         lambda x: x[None],
         Batch(raw[:, : env.obs_dim], action, zeros, raw[:, : env.obs_dim] + 0.1,
               raw[:, env.obs_dim :], jnp.ones(batch)),
     )  # fmt: skip
 
-    def ours_update(s, key):
+    def update(s, key):
         s, _ = sac.update_sac_block(
-            cfg.sac, agent.sac_nets, agent.sac_optimizers, hp, s, ours_batch, env, key
+            cfg.sac, agent.sac_nets, agent.sac_optimizers, hp, s, one_block, env, key
         )
         return s, None
+
+    return update, state
+
+
+def bare_update_ms(size: str, rounds: int, env_name: str = "medium_maze") -> dict[str, list]:
+    """Milliseconds per SAC update of brax's update and of ours alone, `rounds` alternating
+    rounds of BARE_UPDATES updates each on one fixed batch at SIZES[size]: name -> ms."""
+    import jax
+    import jax.numpy as jnp
+    from brax.training import types
+
+    from benchmarks.trainer import throughput_configs
+    from d2c_jax.core import networks
+    from d2c_jax.training.agent import Agent
+
+    hidden, batch = SIZES[size]
+    cfg = throughput_configs(size, env_name)["SAC+HER"]
+    agent = Agent(cfg, envs.make(env_name))
+    feat_dim, act_dim = networks.feature_dim(agent.env), agent.env.action_dim
+    keys = jax.random.split(jax.random.key(0), 4)
+    obs, next_obs = (jax.random.normal(k, (batch, feat_dim)) for k in keys[:2])
+    action = jnp.tanh(jax.random.normal(keys[2], (batch, act_dim)))
+    zeros = jnp.zeros(batch)
+    transitions = types.Transition(
+        obs, action, zeros, jnp.ones(batch), next_obs, {"state_extras": {"truncation": zeros}}
+    )
+    updates = {
+        "brax SAC": _brax_bare_update(hidden, feat_dim, act_dim, transitions, keys[3]),
+        "d2c_jax": _ours_bare_update(cfg, agent, action, keys[3]),
+    }
+    return _alternating_ms(updates, rounds, keys[0])
+
+
+def _alternating_ms(updates: dict, rounds: int, key) -> dict[str, list]:
+    """name -> ms per update of each (update, state) in `updates`, BARE_UPDATES updates per
+    jitted scan, one round of each in turn, `rounds` times, after one untimed call."""
+    import jax
 
     def looped(update):
         return jax.jit(lambda s, k: jax.lax.scan(update, s, jax.random.split(k, BARE_UPDATES))[0])
 
-    loops = {
-        "brax SAC": (looped(brax_update), brax_state),
-        "d2c_jax": (looped(ours_update), ours_state),
-    }
+    loops = {name: (looped(update), state) for name, (update, state) in updates.items()}
     for loop, state in loops.values():
-        jax.block_until_ready(loop(state, keys[0]))
+        jax.block_until_ready(loop(state, key))
     out = {name: [] for name in loops}
     for _ in range(rounds):
         for name, (loop, state) in loops.items():
             start = time.perf_counter()
-            jax.block_until_ready(loop(state, keys[0]))
+            jax.block_until_ready(loop(state, key))
             out[name].append((time.perf_counter() - start) / BARE_UPDATES * 1e3)
     return out
 
