@@ -42,82 +42,51 @@ def total_cost(cost: np.ndarray, cols: np.ndarray) -> float:
     return float(cost[np.arange(cost.shape[0]), cols].sum())
 
 
+def _worst_gap(costs: np.ndarray, optimum: list[float], assignments) -> float:
+    """Worst relative gap over the problems given (zip stops at the shorter)."""
+    return max(
+        (total_cost(c.astype(np.float64), np.asarray(a)) - o) / abs(o)
+        for c, a, o in zip(costs, assignments, optimum, strict=False)
+    )
+
+
+def _hungarian_cols(cost: jax.Array) -> jax.Array:
+    """optax's Hungarian assignment as one column per row, in row order."""
+    rows, cols = optax.assignment.hungarian_algorithm(cost)
+    return cols[jnp.argsort(rows)]
+
+
 def bench_size(k: int, p: int, repeats: int) -> list[tuple]:
     """Rows (solver, batch, seconds per call, max relative gap) for one size."""
     rng = np.random.default_rng(k)
     costs = rng.uniform(0, 1, (BATCH, k, p)).astype(np.float32)
     optimum = [total_cost(c, linear_sum_assignment(c)[1]) for c in costs.astype(np.float64)]
-
-    def gap(assignments):
-        """Worst relative gap over the problems given (zip stops at the shorter)."""
-        return max(
-            (total_cost(c.astype(np.float64), np.asarray(a)) - o) / abs(o)
-            for c, a, o in zip(costs, assignments, optimum, strict=False)
-        )
-
-    auction = jax.jit(matching.auction)
-    auction_batch = jax.jit(jax.vmap(matching.auction))
-
-    def hungarian_cols(c):
-        rows, cols = optax.assignment.hungarian_algorithm(c)
-        return cols[jnp.argsort(rows)]
-
-    hungarian = jax.jit(hungarian_cols)
-    hungarian_batch = jax.jit(jax.vmap(hungarian_cols))
+    auction, auction_batch = jax.jit(matching.auction), jax.jit(jax.vmap(matching.auction))
+    hungarian, hungarian_batch = jax.jit(_hungarian_cols), jax.jit(jax.vmap(_hungarian_cols))
     one, batch = jnp.asarray(costs[0]), jnp.asarray(costs)
     n_gap = BATCH if k < 1024 else 2  # problems checked against scipy
-    rows = []
-    rows.append(
-        (
-            "auction (jit)",
-            1,
-            median_seconds(lambda: auction(one).block_until_ready(), repeats),
-            gap([auction(c) for c in batch[:n_gap]]),
-        )
-    )
-    if k < 1024:  # 16 padded 2048 x 2048 problems at once: minutes per call on a 2-core CPU
-        rows.append(
-            (
-                "auction (jit, vmap)",
-                BATCH,
-                median_seconds(lambda: auction_batch(batch).block_until_ready(), repeats),
-                gap(auction_batch(batch)),
-            )
-        )
-    rows.append(
-        (
-            "scipy linear_sum_assignment",
-            1,
-            median_seconds(lambda: linear_sum_assignment(costs[0]), repeats),
-            0.0,
-        )
-    )
-    rows.append(
-        (
-            "scipy, loop over batch",
-            BATCH,
-            median_seconds(lambda: [linear_sum_assignment(c) for c in costs], repeats),
-            0.0,
-        )
-    )
-    if k <= 256:  # optax's Hungarian is O(n^3) sequential steps: minutes at 1024 x 2048
-        rows.append(
-            (
-                "optax hungarian (jit)",
-                1,
-                median_seconds(lambda: hungarian(one).block_until_ready(), repeats),
-                gap([hungarian(c) for c in batch]),
-            )
-        )
-        rows.append(
-            (
-                "optax hungarian (jit, vmap)",
-                BATCH,
-                median_seconds(lambda: hungarian_batch(batch).block_until_ready(), repeats),
-                gap(hungarian_batch(batch)),
-            )
-        )
-    return rows
+    # (solver, problems per call, the timed call, its gap, whether this size runs it)
+    solvers = [
+        ("auction (jit)", 1, lambda: auction(one).block_until_ready(),
+         lambda: [auction(c) for c in batch[:n_gap]], True),
+        # 16 padded 2048 x 2048 problems at once: minutes per call on a 2-core CPU
+        ("auction (jit, vmap)", BATCH, lambda: auction_batch(batch).block_until_ready(),
+         lambda: auction_batch(batch), k < 1024),
+        ("scipy linear_sum_assignment", 1, lambda: linear_sum_assignment(costs[0]), None, True),
+        ("scipy, loop over batch", BATCH, lambda: [linear_sum_assignment(c) for c in costs],
+         None, True),
+        # optax's Hungarian is O(n^3) sequential steps: minutes at 1024 x 2048
+        ("optax hungarian (jit)", 1, lambda: hungarian(one).block_until_ready(),
+         lambda: [hungarian(c) for c in batch], k <= 256),
+        ("optax hungarian (jit, vmap)", BATCH, lambda: hungarian_batch(batch).block_until_ready(),
+         lambda: hungarian_batch(batch), k <= 256),
+    ]  # fmt: skip
+    return [
+        (name, n, median_seconds(call, repeats),
+         0.0 if assign is None else _worst_gap(costs, optimum, assign()))
+        for name, n, call, assign, wanted in solvers
+        if wanted
+    ]  # fmt: skip
 
 
 def run(repeats: int) -> str:
