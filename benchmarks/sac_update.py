@@ -205,23 +205,48 @@ def jax_update_parts(size: str = "paper", repeats: int = 15) -> list[tuple[str, 
 
 
 # --- PyTorch -------------------------------------------------------------------------------
-def torch_update_rate(size: str, actor_every: int, n_updates: int) -> float:
-    """Updates/s of the same SAC update written in PyTorch (CPU, all cores)."""
+def _torch_mlp(hidden, n_in: int, n_out: int):
+    """A PyTorch ReLU MLP with hidden widths `hidden`."""
+    from torch import nn
+
+    layers, width = [], n_in
+    for h in hidden:
+        layers += [nn.Linear(width, h), nn.ReLU()]
+        width = h
+    return nn.Sequential(*layers, nn.Linear(width, n_out))
+
+
+def _torch_sample(actor, feats):
+    """tanh-squashed Gaussian action and its log-density, as `networks` computes them."""
+    import torch
+    from torch import nn
+
+    mean, raw = actor(feats).chunk(2, -1)
+    log_std = -10.0 + 6.0 * (torch.tanh(raw) + 1.0)
+    u = mean + log_std.exp() * torch.randn_like(mean)
+    log_prob = (-0.5 * ((u - mean) / log_std.exp()) ** 2 - log_std).sum(-1)
+    log_prob = log_prob - (2 * (math.log(2) - u - nn.functional.softplus(-2 * u))).sum(-1)
+    return torch.tanh(u), log_prob
+
+
+def _torch_q(nets, feats, action):
+    """(2, B) Q-values of the twin critics `nets`."""
+    import torch
+
+    x = torch.cat([feats, action], -1)
+    return torch.stack([net(x)[..., 0] for net in nets])
+
+
+def _torch_sac_update(size: str, actor_every: int):
+    """update(i): the i-th SAC update in PyTorch on one fixed random batch at SIZES[size]
+    (critic every update; actor, alpha and target every `actor_every`)."""
     import torch
     from torch import nn
 
     hidden, batch = SIZES[size]
-
-    def mlp(n_in, n_out):
-        layers, width = [], n_in
-        for h in hidden:
-            layers += [nn.Linear(width, h), nn.ReLU()]
-            width = h
-        return nn.Sequential(*layers, nn.Linear(width, n_out))
-
-    actor = mlp(FEATURES, 2 * ACTIONS)
-    critics = nn.ModuleList([mlp(FEATURES + ACTIONS, 1) for _ in range(2)])
-    targets = nn.ModuleList([mlp(FEATURES + ACTIONS, 1) for _ in range(2)])
+    actor = _torch_mlp(hidden, FEATURES, 2 * ACTIONS)
+    critics = nn.ModuleList([_torch_mlp(hidden, FEATURES + ACTIONS, 1) for _ in range(2)])
+    targets = nn.ModuleList([_torch_mlp(hidden, FEATURES + ACTIONS, 1) for _ in range(2)])
     targets.load_state_dict(critics.state_dict())
     log_alpha = torch.zeros((), requires_grad=True)
     opt_actor = torch.optim.Adam(actor.parameters(), lr=1e-4)
@@ -231,43 +256,33 @@ def torch_update_rate(size: str, actor_every: int, n_updates: int) -> float:
     s, s2 = torch.rand(batch, FEATURES, generator=gen), torch.rand(batch, FEATURES, generator=gen)
     a, r = torch.rand(batch, ACTIONS, generator=gen), torch.rand(batch, generator=gen)
 
-    def sample(feats):
-        mean, raw = actor(feats).chunk(2, -1)
-        log_std = -10.0 + 6.0 * (torch.tanh(raw) + 1.0)
-        u = mean + log_std.exp() * torch.randn_like(mean)
-        log_prob = (-0.5 * ((u - mean) / log_std.exp()) ** 2 - log_std).sum(-1)
-        log_prob = log_prob - (2 * (math.log(2) - u - nn.functional.softplus(-2 * u))).sum(-1)
-        return torch.tanh(u), log_prob
-
-    def q(nets, feats, action):
-        x = torch.cat([feats, action], -1)
-        return torch.stack([net(x)[..., 0] for net in nets])
+    def step(opt, loss):
+        opt.zero_grad(set_to_none=True)
+        loss.backward()
+        opt.step()
 
     def update(i):
         alpha = log_alpha.exp().detach()
         with torch.no_grad():
-            a2, logp2 = sample(s2)
-            y = r + 0.99 * (q(targets, s2, a2).min(0).values - alpha * logp2)
-        critic_loss = ((q(critics, s, a) - y) ** 2).mean()
-        opt_critic.zero_grad(set_to_none=True)
-        critic_loss.backward()
-        opt_critic.step()
+            a2, logp2 = _torch_sample(actor, s2)
+            y = r + 0.99 * (_torch_q(targets, s2, a2).min(0).values - alpha * logp2)
+        step(opt_critic, ((_torch_q(critics, s, a) - y) ** 2).mean())
         if (i + 1) % actor_every:
             return
         critics.requires_grad_(False)
-        a_new, logp = sample(s)
-        actor_loss = (alpha * logp - q(critics, s, a_new).min(0).values).mean()
-        opt_actor.zero_grad(set_to_none=True)
-        actor_loss.backward()
-        opt_actor.step()
+        a_new, logp = _torch_sample(actor, s)
+        step(opt_actor, (alpha * logp - _torch_q(critics, s, a_new).min(0).values).mean())
         critics.requires_grad_(True)
-        alpha_loss = -(log_alpha * (logp.detach() - ACTIONS)).mean()
-        opt_alpha.zero_grad(set_to_none=True)
-        alpha_loss.backward()
-        opt_alpha.step()
+        step(opt_alpha, -(log_alpha * (logp.detach() - ACTIONS)).mean())
         with torch.no_grad():
             torch._foreach_lerp_(list(targets.parameters()), list(critics.parameters()), 0.01)
 
+    return update
+
+
+def torch_update_rate(size: str, actor_every: int, n_updates: int) -> float:
+    """Updates/s of the same SAC update written in PyTorch (CPU, all cores)."""
+    update = _torch_sac_update(size, actor_every)
     for i in range(max(4, n_updates // 10)):
         update(i)  # warm-up
     start = time.perf_counter()
