@@ -3,7 +3,10 @@
     python -m benchmarks.learning_curve runs/medium_maze-quick-0 --out benchmarks/plots
 
 Prints the evaluation rows (env steps, wall-clock, eval/success per mode), the first
-evaluation at or above the target, and writes `<out>/<run name>_success.png`.
+evaluation at or above the target, and writes `<out>/<run name>_success.png`. With
+`--window N`, also the training metrics averaged over windows of N env steps (train
+success, still share, final distance, the paper's curriculum distance, Q, alpha, entropy)
+and the median seconds per iteration: the diagnosis a missed target asks for.
 """
 
 from __future__ import annotations
@@ -60,14 +63,53 @@ def markdown_table(rows: list[dict], every: int = 1) -> str:
     return "\n".join(lines)
 
 
+# (metrics key, column title) of `window_table`; a window's value is the mean over its rows
+# that hold the key (curriculum/distance: its evaluation rows).
+WINDOW_KEYS = (
+    ("train/success_rate", "train success"),
+    ("train/still_share", "still share"),
+    ("train/final_distance", "final distance"),
+    ("curriculum/distance", "curriculum/distance"),
+    ("sac/q_mean", "Q"),
+    ("sac/alpha", "alpha"),
+    ("sac/entropy", "entropy"),
+)
+
+
+def window_table(rows: list[dict], window: int) -> str:
+    """Markdown: per window of `window` env steps ((lo, hi], by each row's env_steps), the
+    mean over seeds and rows of each WINDOW_KEYS metric and the median time/iteration_s."""
+    windows: dict[int, list[dict]] = {}
+    for r in rows:
+        windows.setdefault((r["env_steps"] - 1) // window, []).append(r)
+    head = "| env steps | " + " | ".join(t for _, t in WINDOW_KEYS) + " | s per iteration |"
+    lines = [head, "|" + "---|" * (len(WINDOW_KEYS) + 2)]
+    for w, in_window in sorted(windows.items()):
+        lo, hi = w * window, (w + 1) * window
+        cells = [f"{lo // 1000:,}-{hi // 1000:,}k" if window % 1000 == 0 else f"{lo:,}-{hi:,}"]
+        for key, _ in WINDOW_KEYS:
+            values = [logging_lib.mean_of(r[key]) for r in in_window if key in r]
+            cells.append(f"{np.mean(values):.4g}" if values else "")
+        seconds = [r["time/iteration_s"] for r in in_window if "time/iteration_s" in r]
+        cells.append(f"{np.median(seconds):.1f}" if seconds else "")
+        lines.append("| " + " | ".join(cells) + " |")
+    return "\n".join(lines)
+
+
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("run", type=pathlib.Path, help="run directory")
     parser.add_argument("--out", type=pathlib.Path, default=pathlib.Path("benchmarks/plots"))
     parser.add_argument("--target", type=float, default=0.8)
     parser.add_argument("--every", type=int, default=5, help="table: every n-th evaluation")
+    parser.add_argument(
+        "--window", type=int, default=0, metavar="N", help="training metrics per N env steps"
+    )
     args = parser.parse_args(argv)
     rows = logging_lib.read_metrics(args.run / "metrics.jsonl")
+    if args.window < 0:
+        print(f"error: --window must be >= 0 env steps, got {args.window}", file=sys.stderr)
+        return 2
     if not eval_rows(rows):
         print(f"error: {args.run} has no evaluation rows", file=sys.stderr)
         return 2
@@ -95,6 +137,8 @@ def main(argv=None) -> int:
             f"({stays['time/elapsed_s'] / 60:.1f} min) on"
         )
     print(markdown_table(rows, args.every))
+    if args.window:
+        print(window_table(rows, args.window))
     print(f"plot: {plot}")
     return 0
 

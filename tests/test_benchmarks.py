@@ -554,3 +554,45 @@ def test_same_metrics_compares_all_but_time_keys(tmp_path, capsys):
     later.write_text(json.dumps({"iteration": 9, "env_steps": 90}) + "\n")
     assert same_metrics.main([str(run), str(later)]) == 2
     assert capsys.readouterr().err.startswith("error: no iteration in common between ")
+
+
+def test_learning_curve_window_table_by_hand():
+    from benchmarks import learning_curve
+
+    success, seconds = "train/success_rate", "time/iteration_s"
+    rows = [
+        {"env_steps": 100, success: 0.2, "sac/alpha": [0.1, 0.3], seconds: 5},
+        {"env_steps": 200, success: 0.4, "curriculum/distance": 8.0, seconds: 7},
+        {"env_steps": 300, success: 1.0, seconds: 9},
+    ]
+    lines = learning_curve.window_table(rows, 200).splitlines()
+    assert len(lines) == 4  # head, rule, (0, 200], (200, 400]
+    first = [c.strip() for c in lines[2].split("|")[1:-1]]
+    # train success (0.2 + 0.4) / 2; curriculum/distance only where logged; alpha the mean
+    # over seeds of its one row; median seconds of 5 and 7.
+    assert first == ["0-200", "0.3", "", "", "8", "", "0.2", "", "6.0"]
+    second = [c.strip() for c in lines[3].split("|")[1:-1]]
+    assert second[1] == "1" and second[-1] == "9.0"
+
+
+def test_learning_curve_command_prints_windows_and_refuses_a_negative_window(tmp_path, capsys):
+    from benchmarks import learning_curve
+
+    run = tmp_path / "run"
+    run.mkdir()
+    (run / "config.json").write_text(json.dumps({"env": "ant", "preset": "quick"}))
+    rows = [
+        {"env_steps": e, "time/elapsed_s": 60.0 * e / 1000, "time/iteration_s": 60.0,
+         "eval/success": s, "eval/success/0": s, "eval/success/1": s, "train/success_rate": s}
+        for e, s in ((1000, 0.0), (2000, 0.9), (3000, 0.5), (4000, 0.85))
+    ]  # fmt: skip
+    (run / "metrics.jsonl").write_text("".join(json.dumps(r) + "\n" for r in rows))
+    argv = [str(run), "--out", str(tmp_path / "plots"), "--target", "0.8"]
+    assert learning_curve.main([*argv, "--window", "-1"]) == 2
+    assert capsys.readouterr().err.startswith("error: --window must be >= 0")
+    assert learning_curve.main([*argv, "--window", "2000"]) == 0
+    out = capsys.readouterr().out
+    assert "first eval/success >= 0.8: 0.900 at 2,000 env steps, 2.0 min" in out
+    assert "every evaluation >= 0.8 from 4,000 env steps" in out
+    assert "| 0-2k | 0.45 |" in out and "| 2-4k | 0.675 |" in out
+    assert (tmp_path / "plots" / "run_success.png").exists()
