@@ -302,8 +302,8 @@ def _print_visits_and_scores(run, env, ts, grid, ag, every, net, modes) -> None:
     from d2c_jax.curricula import classifier
 
     layout = grid.layout
-    rp = jax.tree.map(np.asarray, ts.replay)
-    phase = np.arange(ag.shape[1])[None] <= rp.walk_start[: int(rp.size), None]
+    walk_start = np.asarray(ts.replay.walk_start)[: ag.shape[0]]  # (episodes,)
+    phase = np.arange(ag.shape[1])[None] <= walk_start[:, None]
     goal_points = np.asarray(env.goal_points)
     p = classifier.p_pseudo(net, ts.classifier.params, grid.centres[:, None], goal_points[None])
     scores = np.asarray(p).max(axis=-1).reshape(len(layout), len(layout[0]))
