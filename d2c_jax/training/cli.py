@@ -18,224 +18,27 @@ import dataclasses
 import json
 import pathlib
 import sys
-import types
 import typing
 
 from d2c_jax import config as config_lib
 from d2c_jax import presets
 from d2c_jax.training import validation
+from d2c_jax.training.options import CLI_FIELDS, Parser, build_parser
+from d2c_jax.training.overrides import UsageError, apply_override, has_field, parse_sweep
 
-
-class UsageError(Exception):
-    """Bad command-line input; the message is shown as the first line, then exit 2."""
-
-
-def _field_types(cls) -> dict[str, object]:
-    return typing.get_type_hints(cls)
-
-
-def _convert(text: str, annotation, name: str):
-    """Parses `text` as `annotation`: int, float, bool, str, Literal, tuple or X | None."""
-    origin = typing.get_origin(annotation)
-    args = typing.get_args(annotation)
-    if origin in (typing.Union, types.UnionType):
-        if text.lower() == "none" and type(None) in args:
-            return None
-        (inner,) = [a for a in args if a is not type(None)]
-        return _convert(text, inner, name)
-    if origin is typing.Literal:
-        if text not in args:
-            raise UsageError(f"--{name} must be one of {', '.join(map(str, args))}, got {text!r}")
-        return text
-    if origin is tuple:
-        return tuple(_convert(t, args[0], name) for t in text.split(",") if t)
-    if annotation is bool:
-        if text.lower() not in ("true", "false", "1", "0"):
-            raise UsageError(f"--{name} must be true or false, got {text!r}")
-        return text.lower() in ("true", "1")
-    try:
-        return annotation(text)
-    except (TypeError, ValueError):
-        raise UsageError(f"--{name} must be {annotation.__name__}, got {text!r}") from None
-
-
-def _has_field(cfg, dotted: str) -> bool:
-    head, _, rest = dotted.partition(".")
-    if head not in _field_types(type(cfg)):
-        return False
-    return _has_field(getattr(cfg, head), rest) if rest else True
-
-
-def apply_override(cfg, dotted: str, text: str, flag: str | None = None):
-    """Returns `cfg` with the field at `dotted` (e.g. 'sac.batch_size') set from `text`.
-
-    `flag` is the option as typed, for messages (default: `dotted` with dashes).
-    """
-    flag = flag or dotted.replace("_", "-")
-    head, _, rest = dotted.partition(".")
-    hints = _field_types(type(cfg))
-    if head not in hints:
-        raise UsageError(f"unknown option --{flag}")
-    if rest:
-        sub = getattr(cfg, head)
-        if not dataclasses.is_dataclass(sub):
-            raise UsageError(f"unknown option --{flag}")
-        return dataclasses.replace(cfg, **{head: apply_override(sub, rest, text, flag)})
-    if dataclasses.is_dataclass(getattr(cfg, head)):
-        raise UsageError(f"--{flag} is a section; set its fields as --{flag}.<field>")
-    return dataclasses.replace(cfg, **{head: _convert(text, hints[head], flag)})
-
-
-class Parser(argparse.ArgumentParser):
-    """argparse with its errors raised as `UsageError` (one line, exit 2), not printed
-    with the usage and exited; train.py's and the run commands' parser."""
-
-    def error(self, message):  # argparse's own errors: one line, exit 2 via UsageError
-        raise UsageError(message)
-
-
-def _parser(with_fields: bool = False) -> argparse.ArgumentParser:
-    """The options of train.py; `with_fields` adds every config field (for --help only:
-    the fields are parsed by `apply_override`, which knows their types)."""
-    parser = Parser(
-        prog="train.py",
-        usage="%(prog)s (--env ENV | --config RUN_DIR/config.json) [options] "
-        "[--<section>.<field> VALUE ...]",
-        description="Train D2C or a baseline (README.md). Any config field can be set as "
-        "--<section>.<field> VALUE; tuples comma-separated.",
-        epilog="Defaults of the config fields are TrainConfig()'s (medium_maze, paper "
-        "preset); the presets and --algo change some of them. Bad input exits with status 2.",
-        add_help=True,
-    )
-    parser.add_argument("--env", default=None, help="environment id: " + ", ".join(_env_ids()))
-    parser.add_argument(
-        "--config",
-        default=None,
-        metavar="RUN_DIR/config.json",
-        help="start a new run from a saved config (its env, preset and algo; flags given "
-        "here override its fields)",
-    )
-    parser.add_argument(
-        "--preset",
-        default=None,
-        metavar="NAME",
-        help="paper | quick | tiny (default: paper with an accelerator, quick without)",
-    )
-    parser.add_argument(
-        "--algo",
-        default=None,
-        metavar="NAME",
-        help=f"{' | '.join(config_lib.ALGO_NAMES)}: D2C or a baseline on the same SAC, HER "
-        "and pool (default d2c; docs/BASELINES.md)",
-    )
-    parser.add_argument("--seed", type=int, default=None, metavar="S", help="first seed S (0)")
-    parser.add_argument(
-        "--seeds", type=int, default=None, metavar="N", help="N seeds S..S+N-1, vmapped (1)"
-    )
-    parser.add_argument(
-        "--total-steps", type=int, default=None, metavar="N", help="env steps to train"
-    )
-    parser.add_argument(
-        "--out", default=None, metavar="DIR", help="run directory (runs/<env>-<preset>-<seed>)"
-    )
-    parser.add_argument("--resume", action="store_true", help="continue the run in --out")
-    parser.add_argument(
-        "--sweep",
-        action="append",
-        default=[],
-        metavar="FIELD=V1,V2,...",
-        help="sweep a hyperparameter (repeatable): every combination of the values, each "
-        "with seeds S..S+N-1, runs as one program; e.g. classifier.diversity-weight=0,1",
-    )
-    _add_process_options(parser)
-    _add_logging_options(parser)
-    if with_fields:
-        _add_field_groups(parser, config_lib.TrainConfig())
-    return parser
-
-
-def _add_process_options(parser: argparse.ArgumentParser) -> None:
-    """The options of a multi-process job (`parse_processes`)."""
-    hosts = parser.add_argument_group(
-        "several processes (hosts)", "each process runs its share of the runs (README, Scaling out)"
-    )
-    hosts.add_argument("--coordinator", default=None, help="HOST:PORT of process 0")
-    hosts.add_argument("--num-processes", type=int, default=None, help="processes in the job")
-    hosts.add_argument("--process-id", type=int, default=None, help="this process, 0..P-1")
-    hosts.add_argument(
-        "--distributed",
-        action="store_true",
-        help="join a multi-process job whose settings the cluster scheduler sets (SLURM, ...)",
-    )
-
-
-def _add_logging_options(parser: argparse.ArgumentParser) -> None:
-    """The logging sinks beside metrics.jsonl (`parse_loggers`)."""
-    logs = parser.add_argument_group(
-        "logging", "metrics.jsonl is always written; these add a sink beside it (extra: [log])"
-    )
-    logs.add_argument(
-        "--log",
-        action="append",
-        default=[],
-        metavar="SINK",
-        help="tensorboard (event files in RUN_DIR/tensorboard) or wandb (offline unless "
-        "WANDB_MODE=online; files in RUN_DIR/wandb); repeatable or comma-separated",
-    )
-    logs.add_argument("--wandb-project", default="d2c_jax", help="W&B project (default d2c_jax)")
-    logs.add_argument(
-        "--wandb-name", default=None, help="W&B run name (default: the run directory's name)"
-    )
-
-
-def _env_ids() -> tuple[str, ...]:
-    """The env ids without importing MJX (config lists the same ids as envs)."""
-    return tuple(config_lib.ENV_SETTINGS)
-
-
-def _add_field_groups(parser: argparse.ArgumentParser, cfg, prefix: str = "") -> None:
-    """One help group per config section, one entry per field: its doc and default."""
-    docs = config_lib.field_docs(type(cfg))
-    hints = _field_types(type(cfg))
-    title = prefix.rstrip(".") or "run"
-    group = parser.add_argument_group(
-        f"config: {title}", (type(cfg).__doc__ or "").strip().splitlines()[0]
-    )
-    sections = []
-    for field in dataclasses.fields(cfg):
-        value = getattr(cfg, field.name)
-        if dataclasses.is_dataclass(value):
-            sections.append((value, prefix + field.name + "."))
-            continue
-        dotted = prefix + field.name
-        if dotted in _CLI_FIELDS:  # shown with its own flag above
-            continue
-        flag = validation.flag_name(dotted)
-        default = validation.show_value(value)
-        group.add_argument(
-            flag,
-            metavar=_metavar(hints[field.name]),
-            help=f"{docs.get(field.name, '')} (default: {default})".replace("%", "%%"),
-        )
-    for section, section_prefix in sections:
-        _add_field_groups(parser, section, section_prefix)
-
-
-# Fields with their own option in `_parser` (not listed again among the config fields).
-_CLI_FIELDS = ("env", "preset", "algo", "seed", "num_seeds", "total_steps", "sweep")
-
-
-def _metavar(annotation) -> str:
-    """How a field's value is written: INT, FLOAT, BOOL, TEXT, a|b|c, or INT,INT,..."""
-    origin, args = typing.get_origin(annotation), typing.get_args(annotation)
-    if origin in (typing.Union, types.UnionType):
-        (inner,) = [a for a in args if a is not type(None)]
-        return _metavar(inner) + "|none"
-    if origin is typing.Literal:
-        return "|".join(map(str, args))
-    if origin is tuple:
-        return f"{_metavar(args[0])},..."
-    return {bool: "BOOL", int: "INT", float: "FLOAT"}.get(annotation, "TEXT")
+# Re-exported: `cli.UsageError` and `cli.Parser` are what the run commands and tests
+# catch and build; `apply_override`, `parse_sweep` and `CLI_FIELDS` complete the CLI's API.
+__all__ = [
+    "CLI_FIELDS",
+    "Parser",
+    "UsageError",
+    "apply_override",
+    "default_out",
+    "default_preset",
+    "main",
+    "parse_args",
+    "parse_sweep",
+]
 
 
 class Processes(typing.NamedTuple):
@@ -252,7 +55,7 @@ def parse_processes(argv: list[str]) -> Processes | None:
     Raises:
       UsageError: an incomplete or inconsistent set of options.
     """
-    known, _ = _parser().parse_known_args(argv)
+    known, _ = build_parser().parse_known_args(argv)
     explicit = (known.coordinator, known.num_processes, known.process_id)
     if all(v is None for v in explicit):
         return Processes(None, None, None) if known.distributed else None
@@ -268,42 +71,6 @@ def parse_processes(argv: list[str]) -> Processes | None:
             f"--process-id must be in [0, {known.num_processes - 1}], got {known.process_id}"
         )
     return Processes(*explicit)
-
-
-def _field_hint(cfg, dotted: str):
-    """The type annotation of the field at dotted path `dotted` of `cfg`."""
-    head, _, rest = dotted.partition(".")
-    if rest:
-        return _field_hint(getattr(cfg, head), rest)
-    return _field_types(type(cfg))[head]
-
-
-def parse_sweep(cfg, spec: str):
-    """`cfg` with the arm values of one `--sweep FIELD=V1,V2,...` appended to cfg.sweep.
-
-    Raises:
-      UsageError: a spec without '=', an unknown or unsweepable field, an empty value,
-        or a value of the wrong type.
-    """
-    from d2c_jax.training import sweep
-
-    name, eq, text = spec.partition("=")
-    if not eq or not name or not text:
-        raise UsageError(f"--sweep {spec!r} must be FIELD=V1,V2,... (e.g. sac.tau=0.005,0.01)")
-    field = name.replace("-", "_")
-    if not _has_field(cfg, field) or dataclasses.is_dataclass(config_lib.get_field(cfg, field)):
-        raise UsageError(f"--sweep {name}: unknown field; sweepable: {sweep.sweepable_list()}")
-    if field not in sweep.SWEEPABLE_FIELDS:
-        raise UsageError(
-            f"--sweep {name}: cannot be swept (it changes shapes or static counts, or is "
-            f"not a hyperparameter); sweepable: {sweep.sweepable_list()}"
-        )
-    texts = text.split(",")
-    if any(not t.strip() for t in texts):
-        raise UsageError(f"--sweep {spec!r}: empty value in the list {text!r}")
-    hint = _field_hint(cfg, field)
-    values = tuple(_convert(t.strip(), hint, f"sweep {name}") for t in texts)
-    return dataclasses.replace(cfg, sweep=cfg.sweep + ((field, values),))
 
 
 def default_out(cfg: config_lib.TrainConfig) -> str:
@@ -339,7 +106,7 @@ def parse_args(
     Raises:
       UsageError: for any bad input.
     """
-    known, rest = _parser().parse_known_args(argv)
+    known, rest = build_parser().parse_known_args(argv)
     notices: list[str] = []
     if known.config is not None:
         cfg = saved_config(known.config, known)
@@ -354,7 +121,7 @@ def parse_args(
         if not option.startswith("--"):
             raise UsageError(f"unexpected argument {option!r}")
         option, eq, value = option[2:].partition("=")
-        if not _has_field(cfg, option.replace("-", "_")):
+        if not has_field(cfg, option.replace("-", "_")):
             raise UsageError(f"unknown option --{option}")
         if not eq:
             if not rest:
@@ -448,7 +215,7 @@ def parse_loggers(argv: list[str]):
     """
     from d2c_jax.training import loggers
 
-    known, _ = _parser().parse_known_args(argv)
+    known, _ = build_parser().parse_known_args(argv)
     names = [n.strip() for text in known.log for n in text.split(",") if n.strip()]
     for name in names:
         if name not in loggers.LOGGER_NAMES:
@@ -493,7 +260,7 @@ def main(argv: list[str] | None = None) -> int:
     enable_compilation_cache()
     argv = sys.argv[1:] if argv is None else argv
     if wants_help(argv):
-        _parser(with_fields=True).print_help()
+        build_parser(with_fields=True).print_help()
         return 0
     try:
         processes = parse_processes(argv)
