@@ -4,7 +4,7 @@
 
 import sys
 
-from d2c_jax.training.runs import plots_main as main
+from d2c_jax.training.commands import plots_main as main
 from d2c_jax.viewing.plots import *  # noqa: F403  (the pre-issue-16 import path)
 
 if __name__ == "__main__":

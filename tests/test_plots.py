@@ -12,7 +12,7 @@ import pytest
 from matplotlib.patches import Circle, Rectangle
 
 from d2c_jax import config as config_lib
-from d2c_jax.training import runs
+from d2c_jax.training import commands, runs
 from d2c_jax.viewing import plots
 from envs import layouts
 
@@ -160,12 +160,12 @@ def test_compare_draws_runs_and_sweep_arms_into_one_png(tmp_path, monkeypatch, c
     sweep_dir = _write_run(tmp_path / "sweep", _sweep_rows(), sweep=SWEEP[1:], num_seeds=2)
     single_dir = _write_run(tmp_path / "single", _sweep_rows([0.25, 0.5, 1.0]))
     out = tmp_path / "both.png"
-    assert runs.plots_main(["compare", str(sweep_dir), str(single_dir), "--out", str(out)]) == 0
+    assert commands.plots_main(["compare", str(sweep_dir), str(single_dir), "--out", str(out)]) == 0
     assert _is_png(out)
     monkeypatch.chdir(tmp_path)  # the default --out: ./compare.png
-    assert runs.plots_main(["compare", str(single_dir)]) == 0
+    assert commands.plots_main(["compare", str(single_dir)]) == 0
     assert _is_png(tmp_path / "compare.png")
-    assert runs.plots_main(["compare"]) == 2
+    assert commands.plots_main(["compare"]) == 2
     assert capsys.readouterr().err.startswith("error: compare: no run directories")
 
 

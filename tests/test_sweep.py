@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 from d2c_jax import config
-from d2c_jax.training import cli, loop, placement, runs, sweep
+from d2c_jax.training import cli, commands, loop, placement, runs, sweep
 from d2c_jax.training import logging as logging_lib
 
 ROOT = pathlib.Path(__file__).resolve().parents[1]
@@ -193,7 +193,7 @@ def test_sharded_sweep_and_its_resume_equal_the_unsharded_run(unsharded, tmp_pat
     assert_rows_close(logging_lib.read_metrics(part / "metrics.jsonl"), unsharded)
     assert_loads_the_real_runs(full, 3)
     # Run 3 is a padding row of the checkpoint, not a run: refused, not drawn.
-    assert runs.render_main([str(full), "--seed-index", "3"]) == 2
+    assert commands.render_main([str(full), "--seed-index", "3"]) == 2
 
 
 def assert_loads_the_real_runs(run_dir, n_runs: int) -> None:

@@ -20,7 +20,7 @@ from mujoco import mjx
 import envs
 from d2c_jax.core import rollout
 from d2c_jax.training import agent as agent_lib
-from d2c_jax.training import cli, runs
+from d2c_jax.training import cli, commands, runs
 from d2c_jax.viewing import html as viewer_html
 
 
@@ -156,7 +156,7 @@ def untrained_run(tmp_path_factory):
 def test_render_command_writes_a_viewer_per_mode(untrained_run, tmp_path, capsys, gl_backend):
     path, gif = tmp_path / "view" / "policy.html", tmp_path / "policy.gif"
     argv = [str(untrained_run), "--html", str(path), "--size", "16", "--out", str(gif)]
-    assert runs.render_main(argv) == 0
+    assert commands.render_main(argv) == 0
     assert gif.is_file()  # the video as before
     assert f"wrote {path}" in capsys.readouterr().out.splitlines()
     document = path.read_text()

@@ -2,7 +2,7 @@
 
 This module only draws: cameras, markers, frames, tiles, still strips, saving pictures
 and videos, and the choice of the OpenGL backend. The episodes it draws come from the
-episode loop (`d2c_jax.core.rollout.trajectories`); `d2c_jax.training.runs.render_policy`
+episode loop (`d2c_jax.core.rollout.trajectories`); `d2c_jax.training.commands.render_policy`
 (`python -m d2c_jax.render RUN_DIR`) renders a trained run's policy.
 
 Rendering is host side: each state's qpos (and mocap_pos, for the Sawyer gripper's mocap
