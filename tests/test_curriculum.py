@@ -12,6 +12,7 @@ import pytest
 from d2c_jax.config import ClassifierConfig, CurriculumConfig
 from d2c_jax.curricula import classifier as clf
 from d2c_jax.curricula import curriculum as cur
+from d2c_jax.curricula import goal_switch
 from envs.base import GoalEnv
 
 
@@ -346,7 +347,7 @@ def test_post_success_goal_moves_towards_the_modes():
     net = DistanceNet(scale=100.0)  # p_pseudo decreases with the distance to the nearest mode
     cfg = CurriculumConfig(post_success_range=2.5)
     choose = jax.jit(
-        jax.vmap(lambda ag, key: cur.post_success_goal(cfg, ENV, net, NO_PARAMS, ag, key))
+        jax.vmap(lambda ag, key: goal_switch.post_success_goal(cfg, ENV, net, NO_PARAMS, ag, key))
     )
     keys = jax.random.split(jax.random.key(0), 200)
     ag = jnp.broadcast_to(jnp.array([14.0, 14.0]), (200, 2))
@@ -359,7 +360,9 @@ def test_post_success_goal_moves_towards_the_modes():
     env = GoalBox([[18.0, 18.0]], [-18.0, -18.0], [18.0, 18.0])
     corner = jax.jit(
         jax.vmap(
-            lambda key: cur.post_success_goal(cfg, env, net, NO_PARAMS, jnp.full(2, 17.5), key)
+            lambda key: goal_switch.post_success_goal(
+                cfg, env, net, NO_PARAMS, jnp.full(2, 17.5), key
+            )
         )
     )(keys)
     assert np.all(corner <= 18.0) and np.mean(np.any(corner == 18.0, axis=-1)) > 0.5
@@ -398,9 +401,13 @@ def test_propose_on_the_medium_maze(medium_maze):
 def test_relaxed_threshold_hand_computed():
     scores = jnp.asarray([0.1, 0.35, 0.2])
     # 0.4 is not reached; 0.38, 0.36 neither; 0.34 is (by 0.35).
-    assert float(cur.relaxed_threshold(scores, 0.4, 0.02)) == pytest.approx(0.34)
-    assert float(cur.relaxed_threshold(jnp.asarray([0.5, 0.1]), 0.4, 0.02)) == pytest.approx(0.4)
-    assert float(cur.relaxed_threshold(jnp.asarray([0.36]), 0.4, 0.02)) == pytest.approx(0.36)
+    assert float(goal_switch.relaxed_threshold(scores, 0.4, 0.02)) == pytest.approx(0.34)
+    assert float(
+        goal_switch.relaxed_threshold(jnp.asarray([0.5, 0.1]), 0.4, 0.02)
+    ) == pytest.approx(0.4)
+    assert float(goal_switch.relaxed_threshold(jnp.asarray([0.36]), 0.4, 0.02)) == pytest.approx(
+        0.36
+    )
 
 
 class ScoreNet(nn.Module):
@@ -421,11 +428,11 @@ def test_outpace_rule_samples_qualifying_candidates_by_softmax():
     env = GoalBox([[0.0, 0.0]], [-18.0, -18.0], [18.0, 18.0])
     keys = jax.random.split(jax.random.key(0), 4000)
     pick = jax.jit(
-        jax.vmap(lambda k: cur.post_success_goal(cfg, env, ScoreNet(), {}, jnp.zeros(2), k))
+        jax.vmap(lambda k: goal_switch.post_success_goal(cfg, env, ScoreNet(), {}, jnp.zeros(2), k))
     )
     goals = np.asarray(pick(keys))
     cands, scores = jax.vmap(
-        lambda k: cur.candidate_scores(env, ScoreNet(), {}, jnp.zeros(2), k, 10, 2.0)
+        lambda k: goal_switch.candidate_scores(env, ScoreNet(), {}, jnp.zeros(2), k, 10, 2.0)
     )(keys)
     cands, scores = np.asarray(cands), np.asarray(scores)
     chosen = np.argmin(np.abs(cands - goals[:, None]).sum(-1), axis=1)  # which candidate

@@ -29,7 +29,7 @@ import jax.numpy as jnp
 from d2c_jax import config as config_lib
 from d2c_jax.core.types import Metrics, RewardFn
 from d2c_jax.curricula import classifier as classifier_lib
-from d2c_jax.curricula import curriculum
+from d2c_jax.curricula import curriculum, goal_switch
 from d2c_jax.curricula.classifier import Classifier
 from envs import GoalEnv
 
@@ -122,7 +122,7 @@ class D2CGoalSwitch:
         params, hp = inputs.classifier_params, inputs.hp
 
         def next_goal(achieved_goal, key):
-            return curriculum.post_success_goal(cfg, env, net, params, achieved_goal, key, hp)
+            return goal_switch.post_success_goal(cfg, env, net, params, achieved_goal, key, hp)
 
         return next_goal
 

@@ -27,7 +27,7 @@ from flax import struct
 
 from d2c_jax.core import her, replay
 from d2c_jax.core.types import Metrics, RewardFn
-from d2c_jax.curricula import aim, curriculum, meta_nml
+from d2c_jax.curricula import aim, curriculum, goal_switch, meta_nml
 from d2c_jax.curricula.interface import Curriculum, CurriculumInputs, GoalSwitch
 
 # The log of p_NML is clamped as torch's BCELoss clamps it (OUTPACE computes -log p so).
@@ -229,7 +229,7 @@ class OutpaceCurriculum(Curriculum):
 
     def next_goal(self, state: OutpaceState, inputs: CurriculumInputs) -> GoalSwitch:
         """OUTPACE's random walk: candidates phi(s) + U(-r, r), scored by p_NML, the
-        threshold rule and softmax of `curriculum.post_success_goal`'s "outpace" rule."""
+        threshold rule and softmax of `goal_switch.post_success_goal`'s "outpace" rule."""
         cfg, env = self.cfg.curriculum, self.env
         k_pool, k_ctx = jax.random.split(inputs.key)
         # One labelled pool per iteration (OUTPACE draws one per call; the draws are iid).
@@ -241,6 +241,6 @@ class OutpaceCurriculum(Curriculum):
             )
 
         def next_goal(achieved_goal, key):
-            return curriculum.walk_goal(cfg, env, achieved_goal, key, inputs.hp, score)
+            return goal_switch.walk_goal(cfg, env, achieved_goal, key, inputs.hp, score)
 
         return next_goal
