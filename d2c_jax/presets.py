@@ -124,6 +124,10 @@ _TRAP_ENVS = ("complex_maze", "spiral_maze", "ant", "sawyer_push", "sawyer_pick_
 #   the only configuration measured to reach a mode (the run with all but the last was at
 #   eval 0.0 to 3M; with 10-step returns from its 2.7M checkpoint, mode 0 at 0.8 30k env
 #   steps later and 1.0 at 3M). About 57 s per 6000-step iteration here (8 hours per 3M).
+#   Since 2026-12-07 also the critic's value as a tie-break in the matching (beta = 1, as
+#   spiral_maze): from scratch with seed 0, mode 1 at 0.7-1.0 from 2,160k env steps and
+#   eval/success 1.0 (both modes) first at 2,730k, where the preset without it was at 0.0
+#   to 1,506k with its slots on one arm.
 # - sawyer_push also 10-step returns since 2026-12-06: from scratch with seed 0, mode 1
 #   (behind the wall) at 0.7-1.0 from 320k env steps and mode 2 at 1.0 from 160k, where
 #   the same preset without them had mode 2 first at 416k and mode 0 or 1 at no
@@ -151,7 +155,7 @@ _QUICK_OVERRIDES: dict[str, dict] = {
         sac=dict(**_SAC_LR_3E4, clip_target=True),
         classifier=_SPEC_CLASSIFIER_SIZE,
         her=dict(min_future_radii=1.0, n_step=10),
-        curriculum=dict(pool_phase="curriculum_phase", pool_walk_steps=50),
+        curriculum=dict(pool_phase="curriculum_phase", pool_walk_steps=50, goal_value_weight=1.0),
     ),
     "sawyer_push": _SAWYER_QUICK,
     "sawyer_pick_place": _SAWYER_QUICK,

@@ -452,7 +452,10 @@ def test_quick_preset_adds_exploration_everywhere_but_medium_maze():
                     ),
                     her=config.HERConfig(min_future_radii=1.0, n_step=10),
                     curriculum=dataclasses.replace(
-                        want.curriculum, pool_phase="curriculum_phase", pool_walk_steps=50
+                        want.curriculum,
+                        pool_phase="curriculum_phase",
+                        pool_walk_steps=50,
+                        goal_value_weight=1.0,  # stop 73: the beta = 1 run
                     ),
                 )
             assert quick == want
