@@ -156,7 +156,7 @@ def untrained_run(tmp_path_factory):
 def test_render_command_writes_a_viewer_per_mode(untrained_run, tmp_path, capsys, gl_backend):
     path, gif = tmp_path / "view" / "policy.html", tmp_path / "policy.gif"
     argv = [str(untrained_run), "--html", str(path), "--size", "16", "--out", str(gif)]
-    assert commands.render_main(argv) == 0
+    assert commands.render_main([*argv, "--checkpoint", "1"]) == 0
     assert gif.is_file()  # the video as before
     assert f"wrote {path}" in capsys.readouterr().out.splitlines()
     document = path.read_text()
@@ -168,3 +168,11 @@ def test_render_command_writes_a_viewer_per_mode(untrained_run, tmp_path, capsys
         pos, _ = frame_poses(decode_system(page))
         assert pos.shape == (env.horizon + 1, 1, 3)  # the reset state and H steps
         np.testing.assert_allclose(pos[0, 0, :2], 0.0, atol=0.2)  # starts near the start
+
+
+def test_render_command_names_the_checkpoints_there_are(untrained_run, capsys):
+    """`--checkpoint` picks the iteration; one without a checkpoint is a one-line exit 2."""
+    assert commands.render_main([str(untrained_run), "--checkpoint", "7"]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("error: ") and len(err.strip().splitlines()) == 1
+    assert "no checkpoint of iteration 7; it has iterations 1" in err

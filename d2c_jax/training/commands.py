@@ -1,7 +1,7 @@
 """The commands that read a run directory (README.md, "Pictures" and "Plots"):
 
     python -m d2c_jax.render RUN_DIR [--out RUN_DIR/policy.gif] [--still strip.png]
-        [--html policy.html]
+        [--html policy.html] [--checkpoint ITERATION]
     python -m d2c_jax.plots RUN_DIR
     python -m d2c_jax.plots compare RUN_DIR [RUN_DIR ...] [--out compare.png]
 
@@ -43,16 +43,22 @@ def render_policy(
     fps: float = 20.0,
     still=None,
     html=None,
+    checkpoint: int | None = None,
 ) -> pathlib.Path:
     """Renders a trained run's policy reaching each goal mode: one tile per mode, one video.
 
     With `still` (a .png path), also writes `still_strip` of the same episodes: one row per
     mode, five moments of its episode. With `html` (a .html path), also writes the same
     episodes in brax's interactive 3-D viewer (`viewing.html`), one viewer per mode.
+    `checkpoint` is the iteration whose policy is drawn (default: the newest checkpoint).
 
     Returns the path of the video (default RUN_DIR/policy.gif).
+
+    Raises:
+      RunError(2): as `runs.load_run` (no config, no checkpoint at `checkpoint`), or a
+        `seed_index` outside the run's seeds.
     """
-    cfg, env, ts = load_run(run_dir)
+    cfg, env, ts = load_run(run_dir, checkpoint)
     check_seed_index(seed_index, ts.iteration.shape[0], run_dir)
     policy = trained_policy(cfg, env, ts, seed_index)
     # One episode per mode from the episode loop (the modes as an argument, not constants).
@@ -94,6 +100,9 @@ def render_main(argv=None) -> int:
     parser.add_argument(
         "--html", default=None, help="also the episodes in an interactive 3-D viewer (.html)"
     )
+    parser.add_argument(
+        "--checkpoint", type=int, default=None, help="iteration to render (default: newest)"
+    )
     args = parser.parse_args(argv)
     try:
         path = render_policy(
@@ -105,6 +114,7 @@ def render_main(argv=None) -> int:
             fps=args.fps,
             still=args.still,
             html=args.html,
+            checkpoint=args.checkpoint,
         )
     # OSError: an --out, --still or --html path that cannot be written.
     except (RunError, RuntimeError, OSError) as err:
