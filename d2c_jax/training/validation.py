@@ -14,7 +14,7 @@ import typing
 from typing import Literal
 
 from d2c_jax.config import ALGO_REWARDS, TrainConfig
-from d2c_jax.training.ranges import (  # noqa: F401  the range kinds, re-exported
+from d2c_jax.training.ranges import (  # the range kinds (tests read them from here too)
     Interval,
     NonEmptyTuple,
     OneOf,
