@@ -284,6 +284,11 @@ class TrainConfig:
     checkpoint_every: int = 50_000
     """Env steps between checkpoints: every ceil(checkpoint_every / E) iterations (and at
     the end, and on a signal). Default: 25 paper iterations of medium_maze (20 x H 100)."""
+    checkpoint_minutes: float = 15.0
+    """Also checkpoint at the end of the first iteration that finds this many minutes of
+    wall clock passed since the last checkpoint (0 = off), so a run killed without a
+    signal loses at most about this much work. Which iterations get one varies; the
+    results do not."""
     algo: Literal["d2c", "her", "hgg", "outpace", "currot", "plr", "alp_gmm", "vds"] = "d2c"
     """The curriculum and its reward: D2C, or a baseline (`ALGO_NAMES`); `with_algo`."""
     reward: Literal["intrinsic", "sparse"] = "intrinsic"

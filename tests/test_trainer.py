@@ -12,7 +12,7 @@ import pytest
 
 from d2c_jax import config
 from d2c_jax.training import agent as agent_lib
-from d2c_jax.training import cli, loop, runs
+from d2c_jax.training import cli, loop, placement, runs
 from d2c_jax.training import logging as logging_lib
 
 ROOT = pathlib.Path(__file__).resolve().parents[1]
@@ -113,6 +113,63 @@ def test_resume_with_nothing_to_resume_exits_2(tmp_path):
     result = run_cli("--env", "medium_maze", "--preset", "tiny", "--out", str(tmp_path), "--resume")
     assert result.returncode == 2
     assert result.stderr.splitlines()[0].startswith("error: nothing to resume")
+
+
+def test_resume_refuses_a_changed_method_and_accepts_a_changed_stop_or_save(tmp_path):
+    """Only `runs.RESUME_MAY_CHANGE` may differ from the saved config.json."""
+    cfg = config.preset("medium_maze", "tiny")
+    runs.prepare_run_dir(tmp_path, cfg, resume=False)
+    later = dataclasses.replace(cfg, total_steps=8000, checkpoint_every=1, checkpoint_minutes=0.5)
+    runs.prepare_run_dir(tmp_path, later, resume=True)
+    assert json.loads((tmp_path / "config.json").read_text())["checkpoint_minutes"] == 0.5
+    other = dataclasses.replace(later, sac=dataclasses.replace(cfg.sac, gamma=0.9))
+    with pytest.raises(runs.RunError, match=r"differs from .*config\.json in \['sac'\]") as err:
+        runs.prepare_run_dir(tmp_path, other, resume=True)
+    assert err.value.status == 2
+
+
+class _FakeClock:
+    def __init__(self):
+        self.now = 0.0
+
+    def __call__(self) -> float:
+        return self.now
+
+
+def test_checkpoint_timer_is_due_after_its_minutes_and_never_when_off():
+    one_process = placement.RunLayout(n_runs=1, n_processes=1, process_index=0, n_local_devices=1)
+    clock = _FakeClock()
+    timer, off = loop.CheckpointTimer(2.0, clock), loop.CheckpointTimer(0.0, clock)
+    clock.now = 119.9
+    assert not timer.due(one_process)
+    clock.now = 120.0
+    assert timer.due(one_process) and timer.due(one_process)  # due until a save resets it
+    timer.reset()
+    clock.now = 239.0
+    assert not timer.due(one_process)
+    clock.now = 1e9
+    assert not off.due(one_process)
+
+
+@pytest.mark.parametrize("minutes, kept", [(1e-9, [2, 3, 4]), (0.0, [4])])
+def test_timed_checkpoints_save_between_scheduled_ones(minutes, kept, tmp_path):
+    """With checkpoint_every past the run's end, a timer that is always due saves at every
+    iteration (the newest 3 kept); with the timer off only the end saves. The timed
+    checkpoints change no result: the metrics equal those of the same run without them."""
+    args = ["--env", "medium_maze", "--preset", "tiny", "--total-steps", "1600"]
+    cfg, _, _ = cli.parse_args(
+        [*args, "--checkpoint-every", "1000000", "--checkpoint-minutes", str(minutes)]
+    )
+    assert loop.train(cfg, tmp_path / "run", quiet=True) == 0
+    saved = sorted(int(d.name) for d in (tmp_path / "run" / "checkpoints").iterdir()
+                   if d.name.isdigit())  # fmt: skip
+    assert saved == kept
+    if minutes:
+        plain, _, _ = cli.parse_args(args)
+        assert loop.train(plain, tmp_path / "plain", quiet=True) == 0
+        assert strip_time(logging_lib.read_metrics(tmp_path / "run" / "metrics.jsonl")) == (
+            strip_time(logging_lib.read_metrics(tmp_path / "plain" / "metrics.jsonl"))
+        )
 
 
 def test_unreadable_checkpoint_exits_2(tiny_run, tmp_path):

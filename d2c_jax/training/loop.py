@@ -131,6 +131,24 @@ class Stopwatch:
         return time.perf_counter() - self.start
 
 
+class CheckpointTimer:
+    """`checkpoint_minutes`: whether that much wall clock has passed since the last
+    checkpoint (or the start), so a run killed without a signal (SIGKILL, a lost machine)
+    loses at most about that much work, whatever `checkpoint_every` is."""
+
+    def __init__(self, minutes: float, clock=time.monotonic):
+        self.seconds, self.clock = 60.0 * minutes, clock
+        self.reset()
+
+    def reset(self) -> None:
+        self.last = self.clock()
+
+    def due(self, layout: placement.RunLayout) -> bool:
+        """Due in any process (a collective with several), so all of them save together."""
+        mine = self.seconds > 0 and self.clock() - self.last >= self.seconds
+        return placement.any_process(layout, mine)
+
+
 # --- the loop ---------------------------------------------------------------------------
 
 
@@ -283,6 +301,7 @@ class _Loop:
     def __init__(self, agent, layout, mesh, steps: _Compiled, ckpt, output: _Output, clock):
         self.agent, self.layout, self.mesh, self.steps = agent, layout, mesh, steps
         self.ckpt, self.output, self.clock = ckpt, output, clock
+        self.checkpoint_timer = CheckpointTimer(agent.cfg.checkpoint_minutes)
 
     def run(self, ts, start: int, quiet: bool) -> int:
         """Iterations start..total (or until a stop signal); returns the exit status."""
@@ -309,8 +328,10 @@ class _Loop:
                     progress.console.print(f"  estimated time to finish: {left:.1f} min")
                 timing = {}
                 bar.update(it + 1, lap, row)
-                if last or (it + 1) % sched.checkpoint_every == 0:
+                timed = self.checkpoint_timer.due(layout)  # a collective: every iteration
+                if last or (it + 1) % sched.checkpoint_every == 0 or timed:
                     runs.save_state(self.ckpt, it + 1, ts)
+                    self.checkpoint_timer.reset()
                 if stopping:
                     return 128 + (stop.signal or signal.SIGTERM)
         return 0

@@ -40,6 +40,10 @@ def config_to_json(cfg) -> str:
     return json.dumps(dataclasses.asdict(cfg), indent=2, sort_keys=True)
 
 
+# Fields a resumed run may change: where it stops and when it saves, not what it computes.
+RESUME_MAY_CHANGE = ("total_steps", "checkpoint_every", "checkpoint_minutes")
+
+
 def prepare_run_dir(out: pathlib.Path, cfg, resume: bool) -> None:
     """Creates or checks the run directory and writes config.json (before any compile).
 
@@ -64,7 +68,8 @@ def prepare_run_dir(out: pathlib.Path, cfg, resume: bool) -> None:
         # re-expressed, e.g. checkpoint_every in iterations) compares by meaning.
         saved = json.loads(config_to_json(config_lib.from_dict(config_lib.TrainConfig, saved)))
         current = json.loads(config_to_json(cfg))
-        saved.pop("total_steps", None), current.pop("total_steps", None)
+        for field in RESUME_MAY_CHANGE:
+            saved.pop(field, None), current.pop(field, None)
         if saved != current:
             diff = sorted(k for k in current if saved.get(k) != current[k])
             raise RunError(f"--resume with a config that differs from {config_path} in {diff}", 2)
