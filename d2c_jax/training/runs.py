@@ -49,7 +49,8 @@ def prepare_run_dir(out: pathlib.Path, cfg, resume: bool) -> None:
 
     Raises:
       RunError(2): a non-empty directory without --resume, --resume with nothing to
-        resume, or --resume with a different config; or a directory that cannot be
+        resume, or --resume with a config that differs other than in
+        `RESUME_MAY_CHANGE`; or a directory that cannot be
         created, is not a directory, or cannot be written or read (the OSError's reason).
     """
     out = pathlib.Path(out)
