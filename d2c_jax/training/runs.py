@@ -49,9 +49,9 @@ def prepare_run_dir(out: pathlib.Path, cfg, resume: bool) -> None:
 
     Raises:
       RunError(2): a non-empty directory without --resume, --resume with nothing to
-        resume, or --resume with a config that differs other than in
-        `RESUME_MAY_CHANGE`; or a directory that cannot be
-        created, is not a directory, or cannot be written or read (the OSError's reason).
+        resume, or --resume with a config that differs in more than
+        `RESUME_MAY_CHANGE`; or a directory that cannot be created, is not a directory,
+        or cannot be written or read (the OSError's reason).
     """
     out = pathlib.Path(out)
     config_path = out / "config.json"
