@@ -178,6 +178,42 @@ def test_evaluate_scores_the_episodes_of_the_loop(medium_maze):
     np.testing.assert_array_equal(score, (np.asarray(env.goal_points)[:, 1] > 0).astype(float))
 
 
+def test_episodes_in_batches_equal_one_batch(medium_maze):
+    """`in_batches` (lax.map over batches, the last one padded) gives every episode what
+    one batch gives it: each keeps its own key. Random actions make every episode differ."""
+    env = medium_maze
+    noisy = lambda obs, goal, key: jax.random.uniform(key, (2,), minval=-1, maxval=1)  # noqa: E731
+    record = lambda before, action, after: (after.achieved_goal, after.success)  # noqa: E731
+
+    def play(goals, env_keys):
+        return rollout.run_with_env_keys(env, noisy, goals, env_keys, record=record, steps=20)[1]
+
+    goals = jnp.repeat(jnp.asarray(env.goal_points), 2, axis=0)[:7]  # 7 = 3 + 3 + 1 padded
+    env_keys = jax.random.split(jax.random.key(5), 7)
+    whole = jax.jit(lambda g, k: rollout.in_batches(play, g, k, 100))(goals, env_keys)
+    batched = jax.jit(lambda g, k: rollout.in_batches(play, g, k, 3))(goals, env_keys)
+    assert batched[0].shape == (7, 20, 2) and batched[1].shape == (7, 20)
+    assert np.ptp(np.asarray(whole[0])[:, -1], axis=0).min() > 0.1  # the episodes differ
+    np.testing.assert_allclose(batched[0], whole[0], rtol=0, atol=1e-5)
+    np.testing.assert_array_equal(batched[1], whole[1])
+    # run(key) is run_with_env_keys with split(key, n)
+    _, by_key = rollout.run(env, noisy, goals, jax.random.key(5), record=record, steps=20)
+    np.testing.assert_allclose(by_key[0], whole[0], rtol=0, atol=1e-5)
+
+
+def test_success_rates_in_batches_equal_one_batch(medium_maze):
+    """The evaluation's score does not depend on how many episodes run at once."""
+    env = medium_maze
+    policy = lambda obs, goal, key: jnp.where(goal[1] > 0, oracle(obs, goal, key), 0.0)  # noqa: E731
+    goals, key = jnp.asarray(env.goal_points), jax.random.key(6)
+    scores = [
+        jax.jit(lambda k, b=b: rollout.success_rates(env, policy, goals, 2, k, max_batch=b))(key)
+        for b in (100, 3)
+    ]
+    np.testing.assert_array_equal(scores[1], scores[0])
+    np.testing.assert_array_equal(scores[0], (np.asarray(env.goal_points)[:, 1] > 0).astype(float))
+
+
 def test_run_records_what_it_is_told(medium_maze):
     """run(record=...) keeps per step what record(before, action, after) returns."""
     env = medium_maze

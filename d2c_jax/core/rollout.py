@@ -98,8 +98,14 @@ def episode_keys(key: jax.Array, num_envs: int, steps: int) -> tuple[jax.Array, 
     Env i's keys come from `split(key, n_envs)[i]` alone, split into (reset, steps), the
     latter into `steps` step keys: the same stream as a per-env episode loop.
     """
+    return keys_of_envs(jax.random.split(key, num_envs), steps)
+
+
+def keys_of_envs(env_keys: jax.Array, steps: int) -> tuple[jax.Array, jax.Array]:
+    """`episode_keys` from each env's own key (n_envs,): (reset (n_envs,), steps
+    (steps, n_envs)), so any subset of the envs can be played apart with the same keys."""
     split = jax.vmap(jax.random.split)
-    key_reset, key_steps = jnp.moveaxis(split(jax.random.split(key, num_envs)), 1, 0)
+    key_reset, key_steps = jnp.moveaxis(split(env_keys), 1, 0)
     step_keys = jax.vmap(lambda k: jax.random.split(k, steps))(key_steps)  # (n, steps)
     return key_reset, jnp.moveaxis(step_keys, 1, 0)
 
@@ -178,9 +184,28 @@ def run(
     Returns:
       (the reset states (n_envs,), the records with leading axes (n_envs, steps)).
     """
+    return run_with_env_keys(
+        env, policy, goals, jax.random.split(key, goals.shape[0]), record=record,
+        steps=steps, next_goal=next_goal, switch_every=switch_every,
+    )  # fmt: skip
+
+
+def run_with_env_keys(
+    env: GoalEnv,
+    policy: Policy,
+    goals: jax.Array,
+    env_keys: jax.Array,
+    *,
+    record: Record,
+    steps: int | None = None,
+    next_goal: GoalSwitch | None = None,
+    switch_every: int = 0,
+) -> tuple[EnvState, Any]:
+    """`run` with each env's key given (n_envs,): `run(..., key)` is this with
+    `split(key, n_envs)`."""
     steps = env.horizon if steps is None else steps
     num_envs = goals.shape[0]
-    key_reset, step_keys = episode_keys(key, num_envs, steps)
+    key_reset, step_keys = keys_of_envs(env_keys, steps)
     first = jax.vmap(env.reset_with_goal)(key_reset, goals)
     step = _make_step(env, policy, next_goal, switch_every, record)
     carry = (first, jnp.zeros(num_envs, bool), jnp.zeros(num_envs, jnp.int32))
@@ -241,20 +266,59 @@ def collect(
     )
 
 
+# Episodes played as one batch at most by `success_rates`. On XLA:CPU (jax 0.10.2) an Ant
+# evaluation of 400 episodes in one batch hung after compiling (its YNNPACK matmul
+# fusions; 100 finished): benchmarks/RESULTS.md, stop 74.
+MAX_EPISODE_BATCH = 100
+
+
+def in_batches(play, goals: jax.Array, env_keys: jax.Array, max_batch: int):
+    """`play(goals, env_keys)` on (n, ...) inputs, as one call when n <= max_batch (the
+    same operations as before batching), else `lax.map` over batches of max_batch rows (the last
+    padded by repeating its final row; the padding's outputs are dropped). Each episode
+    keeps its own key, so its outcome does not depend on the batching."""
+    n = goals.shape[0]
+    if n <= max_batch:
+        return play(goals, env_keys)
+    n_batches = -(-n // max_batch)
+    pad = n_batches * max_batch - n
+    batched = [
+        jnp.concatenate([x, jnp.repeat(x[-1:], pad, axis=0)]).reshape(
+            (n_batches, max_batch) + x.shape[1:]
+        )
+        for x in (goals, env_keys)
+    ]
+    out = jax.lax.map(lambda args: play(*args), tuple(batched))
+    return jax.tree.map(lambda x: x.reshape((n_batches * max_batch,) + x.shape[2:])[:n], out)
+
+
 def success_rates(
-    env: GoalEnv, policy: Policy, goals: jax.Array, episodes_per_goal: int, key: jax.Array
+    env: GoalEnv,
+    policy: Policy,
+    goals: jax.Array,
+    episodes_per_goal: int,
+    key: jax.Array,
+    max_batch: int = MAX_EPISODE_BATCH,
 ) -> jax.Array:
     """(n_goals,) share of `episodes_per_goal` episodes per goal that reach it: SPEC §7's
     episodes (from the start state with its reset noise, no goal switching; success =
     within the radius at any step) for any goals (n_goals, goal_dim).
 
     Episode i (goal i // episodes_per_goal) uses `split(key, n)[i]`. `policy` should be
-    deterministic (tanh of the mean): then its key does not matter.
+    deterministic (tanh of the mean): then its key does not matter. At most `max_batch`
+    episodes are played at once (`in_batches`; see `MAX_EPISODE_BATCH`).
     """
     repeated = jnp.repeat(goals, episodes_per_goal, axis=0)  # (n_goals * n, goal_dim)
-    _, success = run(env, policy, repeated, key, record=lambda before, action, after: after.success)
+    success = in_batches(
+        lambda g, k: run_with_env_keys(env, policy, g, k, record=_success_of)[1],
+        repeated, jax.random.split(key, repeated.shape[0]), max_batch,
+    )  # fmt: skip
     hit = success.any(axis=1).astype(jnp.float32)  # (n_goals * n,)
     return hit.reshape(goals.shape[0], episodes_per_goal).mean(axis=1)
+
+
+def _success_of(before: EnvState, action: jax.Array, after: EnvState) -> jax.Array:
+    return after.success
 
 
 def evaluate(env: GoalEnv, policy: Policy, episodes_per_mode: int, key: jax.Array) -> jax.Array:
