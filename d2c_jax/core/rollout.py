@@ -273,10 +273,10 @@ MAX_EPISODE_BATCH = 100
 
 
 def in_batches(play, goals: jax.Array, env_keys: jax.Array, max_batch: int):
-    """`play(goals, env_keys)` on (n, ...) inputs, as one call when n <= max_batch (the
-    same operations as before batching), else `lax.map` over batches of max_batch rows (the last
-    padded by repeating its final row; the padding's outputs are dropped). Each episode
-    keeps its own key, so its outcome does not depend on the batching."""
+    """`play(goals, env_keys)` on (n, ...) inputs: one call when n <= max_batch, else
+    `lax.map` over batches of max_batch rows (the last padded by repeating its final row;
+    the padding's outputs are dropped). Each episode keeps its own key, so its outcome
+    does not depend on the batching."""
     n = goals.shape[0]
     if n <= max_batch:
         return play(goals, env_keys)
@@ -318,6 +318,7 @@ def success_rates(
 
 
 def _success_of(before: EnvState, action: jax.Array, after: EnvState) -> jax.Array:
+    """The `Record` of `success_rates`: success after each step."""
     return after.success
 
 
