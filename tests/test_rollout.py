@@ -130,7 +130,7 @@ def test_trajectories_start_at_the_reset_state_and_take_any_number_of_steps(medi
     assert tr.goal.shape == (3, 5, 2) and tr.success.shape == (3, 5)
     assert tr.achieved_goal.shape == (3, 5, 2)
     np.testing.assert_array_equal(tr.goal, np.broadcast_to(goals[:, None], (3, 5, 2)))
-    key_reset, _ = rollout.episode_keys(key, 3, 4)
+    key_reset, _ = rollout.episode_keys(jax.random.split(key, 3), 4)
     reset = jax.vmap(env.reset_with_goal)(key_reset, goals)
     np.testing.assert_array_equal(tr.qpos[:, 0], reset.data.qpos)
     np.testing.assert_array_equal(tr.achieved_goal, tr.qpos[..., :2])

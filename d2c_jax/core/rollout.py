@@ -92,18 +92,13 @@ def stayed_at_start(achieved_goal: jax.Array, radius: float) -> jax.Array:
 # --- the loop ---------------------------------------------------------------------------
 
 
-def episode_keys(key: jax.Array, num_envs: int, steps: int) -> tuple[jax.Array, jax.Array]:
-    """(reset keys (n_envs,), step keys (steps, n_envs)) of `run`.
+def episode_keys(env_keys: jax.Array, steps: int) -> tuple[jax.Array, jax.Array]:
+    """(reset keys (n_envs,), step keys (steps, n_envs)) of `run_with_env_keys`.
 
-    Env i's keys come from `split(key, n_envs)[i]` alone, split into (reset, steps), the
-    latter into `steps` step keys: the same stream as a per-env episode loop.
+    Env i's keys come from its own key `env_keys[i]` alone (in `run`, `split(key,
+    n_envs)[i]`), split into (reset, steps), the latter into `steps` step keys: the same
+    stream as a per-env episode loop, so any subset of the envs can be played apart.
     """
-    return keys_of_envs(jax.random.split(key, num_envs), steps)
-
-
-def keys_of_envs(env_keys: jax.Array, steps: int) -> tuple[jax.Array, jax.Array]:
-    """`episode_keys` from each env's own key (n_envs,): (reset (n_envs,), steps
-    (steps, n_envs)), so any subset of the envs can be played apart with the same keys."""
     split = jax.vmap(jax.random.split)
     key_reset, key_steps = jnp.moveaxis(split(env_keys), 1, 0)
     step_keys = jax.vmap(lambda k: jax.random.split(k, steps))(key_steps)  # (n, steps)
@@ -175,7 +170,7 @@ def run(
       env: the environment.
       policy: action function (see `Policy`); it gets the first half of each step key.
       goals: (n_envs, goal_dim) the goal each episode starts with (`env.reset_with_goal`).
-      key: PRNG key (streams: see `episode_keys`).
+      key: PRNG key; env i plays with `split(key, n_envs)[i]` (see `episode_keys`).
       record: what to keep of each step (see `Record`).
       steps: env steps per episode (default: the horizon H).
       next_goal: post-success goal choice (see `GoalSwitch`); None: goals never change.
@@ -205,7 +200,7 @@ def run_with_env_keys(
     `split(key, n_envs)`."""
     steps = env.horizon if steps is None else steps
     num_envs = goals.shape[0]
-    key_reset, step_keys = keys_of_envs(env_keys, steps)
+    key_reset, step_keys = episode_keys(env_keys, steps)
     first = jax.vmap(env.reset_with_goal)(key_reset, goals)
     step = _make_step(env, policy, next_goal, switch_every, record)
     carry = (first, jnp.zeros(num_envs, bool), jnp.zeros(num_envs, jnp.int32))
