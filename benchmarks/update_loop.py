@@ -4,7 +4,7 @@
 
 For each value v of `--variants`, our SAC+HER row of the throughput table (settings of
 `benchmarks.trainer.throughput_configs`: one update per env step, actor and target at
-every update) is compiled with `agent._MIN_UPDATES_PER_LOOP_ITERATION = v`; then brax SAC
+every update) is compiled with `sac_loop.MIN_UPDATES_PER_LOOP_ITERATION = v`; then brax SAC
 trains `--epochs` timed epochs, and before each one a timed round of every variant runs
 (`benchmarks.trainer.alternate_rounds`), so all of them see the same machine. Prints each
 variant's env steps/s and its ratio to brax SAC (best / best and the paired median).
@@ -17,20 +17,20 @@ import sys
 
 from benchmarks import brax_sac, results, trainer
 from benchmarks.sac_update import SIZES
-from d2c_jax.training import agent as agent_lib
+from d2c_jax.training import sac_loop
 
 
 def variant_rates(size: str, variants: list[int], epochs: int) -> tuple[list, dict]:
     """brax SAC's env steps/s per timed epoch, and ours per variant: name -> list."""
-    default = agent_lib._MIN_UPDATES_PER_LOOP_ITERATION
+    default = sac_loop.MIN_UPDATES_PER_LOOP_ITERATION
     ours = {}
     try:
         for v in variants:  # read when the step is traced, so set it before each compile
-            agent_lib._MIN_UPDATES_PER_LOOP_ITERATION = v
+            sac_loop.MIN_UPDATES_PER_LOOP_ITERATION = v
             config = trainer.throughput_configs(size)["SAC+HER"]
             ours[f"{v} per iteration"] = trainer.TimedRun(config)
     finally:
-        agent_lib._MIN_UPDATES_PER_LOOP_ITERATION = default
+        sac_loop.MIN_UPDATES_PER_LOOP_ITERATION = default
     return rates_beside_brax(size, ours, epochs)
 
 

@@ -12,7 +12,7 @@ import pytest
 
 from d2c_jax import config
 from d2c_jax.training import agent as agent_lib
-from d2c_jax.training import cli, loop, placement, runs
+from d2c_jax.training import cli, loop, placement, programs, runs
 from d2c_jax.training import logging as logging_lib
 
 ROOT = pathlib.Path(__file__).resolve().parents[1]
@@ -318,7 +318,7 @@ def test_held_goals_between_matchings_are_used_in_turn(medium_maze, num_envs):
     agent = agent_lib.Agent(cfg, medium_maze)
     assert agent.schedule.rematch_every == 2
     ts = agent.init_seeds()
-    step = agent_lib.jit_step(agent)
+    step = programs.jit_step(agent)
     ts1, m1 = step(ts)
     ts2, m2 = step(jax.tree.map(jax.numpy.copy, ts1))
     np.testing.assert_array_equal(ts1.curriculum_goals, ts2.curriculum_goals)
@@ -349,7 +349,7 @@ def test_the_step_reads_its_hyperparameters_from_the_state(medium_maze):
         sac=ts.hparams.sac.replace(actor_lr=zero(), critic_lr=zero(), alpha_lr=zero(), tau=zero()),
         classifier=ts.hparams.classifier.replace(lr=zero()),
     )
-    step = agent_lib.jit_step(agent)
+    step = programs.jit_step(agent)
     before = jax.tree.map(np.asarray, (ts.sac, ts.classifier.params))
     after, metrics = step(ts.replace(hparams=frozen))
     nets = lambda s: (s.actor_params, s.critic_params, s.target_critic_params, s.log_alpha)  # noqa: E731
@@ -546,7 +546,7 @@ def test_over_runs_equals_vmap_with_and_without_a_size_one_axis():
             "b": jnp.asarray(rng.normal(size=(n, 5))),
         }
         want = jax.vmap(fn, in_axes=(0, None))(tree, 2.0)
-        got = agent_lib.over_runs(fn, n, in_axes=(0, None))(tree, 2.0)
+        got = programs.over_runs(fn, n, in_axes=(0, None))(tree, 2.0)
         assert jax.tree.map(jnp.shape, got) == jax.tree.map(jnp.shape, want)
         jax.tree.map(lambda g, w: np.testing.assert_allclose(g, w, rtol=1e-6), got, want)
 
@@ -564,8 +564,9 @@ def test_sac_blocks_drawn_ahead_equal_a_block_by_block_loop(
     import jax
 
     from d2c_jax.core import her, sac
+    from d2c_jax.training import sac_loop
 
-    monkeypatch.setattr(agent_lib, "_SAMPLE_CHUNK", 3)
+    monkeypatch.setattr(sac_loop, "SAMPLE_CHUNK", 3)
     cfg = config.preset("medium_maze", "tiny")
     sac_cfg = dataclasses.replace(cfg.sac, actor_update_every=cadence, target_update_every=cadence)
     her_cfg = dataclasses.replace(cfg.her, min_future_radii=min_future_radii)

@@ -25,7 +25,10 @@ from d2c_jax import config as config_lib
 from d2c_jax.core import her, networks, replay, rollout, sac
 from d2c_jax.core.types import RewardFn
 from d2c_jax.curricula import classifier, curriculum, interface
-from d2c_jax.training import placement, sweep
+from d2c_jax.training import sac_loop, sweep
+from d2c_jax.training.programs import jit_evaluate as jit_evaluate
+from d2c_jax.training.programs import jit_step as jit_step
+from d2c_jax.training.programs import over_runs as over_runs
 from d2c_jax.training.state import HostConstants as HostConstants
 from d2c_jax.training.state import Hyperparams as Hyperparams
 from d2c_jax.training.state import Schedule as Schedule
@@ -36,21 +39,6 @@ from d2c_jax.training.state import make_schedule as make_schedule
 
 # Buffer states in the KDE of the archive's rarity weights (`Agent._archive_log_weights`).
 _RARITY_POINTS = 1024
-
-# SAC blocks whose HER transitions `Agent.sac_blocks` draws at once: 64 x 2 x 256 rows at
-# the quick preset; on Ant at the paper's batch, 64 x 512 rows of 70 floats (9 MB).
-_SAMPLE_CHUNK = 64
-
-# SAC updates in one iteration of the update loop's compiled body, at least: blocks of
-# fewer updates are unrolled (`lax.scan`'s unroll) up to it. XLA:CPU copies the SAC
-# parameters that its YNNPACK matmuls read at the top of every loop iteration (so that Adam
-# can then overwrite them in place), so two updates per iteration halve those copies for
-# one-update blocks (actor and target every update: the throughput benchmark's settings).
-# Measured on 2 Intel Xeon cores, SAC+HER at 2x256: 0.90x brax SAC's env steps/s with one
-# update per iteration, 1.00x with 2 and 4, 0.97x with 8 (paired medians of 6 rounds).
-# The presets' two-update blocks are unchanged: unrolling them too gained nothing
-# (medium_maze quick: 1.01x with 2 blocks per iteration, 0.94x with 4). benchmarks/RESULTS.md.
-_MIN_UPDATES_PER_LOOP_ITERATION = 2
 
 
 class Agent:
@@ -345,67 +333,15 @@ class Agent:
         return her.sparse_reward_fn(self.env) if terminal else None
 
     def sac_blocks(self, ts: TrainState, n: int, key) -> tuple[TrainState, dict]:
-        """`n` blocks of `sac.block_size` SAC updates (critic each, actor and target on
-        their cadences) with the current classifier; the mean "sac/*" metrics.
-
-        Each update gets its own HER batch. The transitions and their relabelled goals are
-        drawn ahead, `_SAMPLE_CHUNK` blocks at a time (one set of gathers instead of one
-        per update: SAC+HER's updates 6-9% faster at 2x256); each block's rewards come
-        from the current classifier inside the loop, one call on block_size x B rows (a
-        classifier forward runs fastest on ~1k rows on a CPU: 50-58 GMAC/s, 32-35 at
-        16k-100k rows). Each compiled loop iteration runs at least
-        `_MIN_UPDATES_PER_LOOP_ITERATION` updates. Block i draws from the i-th of `n` keys
-        of `key`, as a block-by-block loop would. A statically unrolled block needs no
-        `lax.cond` on the update counter, which under vmap (seeds) would compute the actor
-        update at every step.
-        """
+        """`n` blocks of `sac.block_size` SAC updates on HER batches rewarded by the current
+        classifier (`sac_loop.sac_blocks`); the mean "sac/*" metrics."""
         if n == 0:
             return ts, {}
-        cfg = self.cfg
-        reward_fn = self.reward_fn(ts)
-        terminal_fn = self.terminal_fn()
-        prob, walk = ts.hparams.relabel_prob, cfg.replay.walk_fraction
-        min_future = cfg.her.min_future_radii * self.env.success_radius
-        keys = jax.random.split(key, n)
-        size = min(n, _SAMPLE_CHUNK)
-        unroll = -(-_MIN_UPDATES_PER_LOOP_ITERATION // sac.block_size(cfg.sac))
-        full = n - n % size
-
-        def draw_block(key):  # -> leaves (block_size, B, ...)
-            keys = jax.random.split(key, sac.block_size(cfg.sac))
-            draw = lambda k: her.sample_relabelled(  # noqa: E731
-                prob,
-                ts.replay,
-                cfg.sac.batch_size,
-                k,
-                walk,
-                min_future,
-                cfg.her.random_prob,
-                cfg.her.n_step,
-            )
-            return jax.vmap(draw)(keys)
-
-        def update_block(sac_state, drawn_and_key):
-            drawn, key = drawn_and_key
-            batches = jax.vmap(
-                lambda tr: her.with_reward(tr, reward_fn, terminal_fn, cfg.sac.gamma)
-            )(drawn)
-            return sac.update_sac_block(
-                cfg.sac, self.sac_nets, self.sac_optimizers, ts.hparams.sac, sac_state,
-                batches, self.env, key,
-            )  # fmt: skip
-
-        def chunk(sac_state, chunk_keys):  # (m,) keys -> m blocks
-            draw_keys, update_keys = jax.vmap(jax.random.split, out_axes=1)(chunk_keys)
-            drawn = jax.vmap(draw_block)(draw_keys)
-            return jax.lax.scan(update_block, sac_state, (drawn, update_keys), unroll=unroll)
-
-        sac_state, metrics = jax.lax.scan(chunk, ts.sac, keys[:full].reshape(-1, size))
-        metrics = jax.tree.map(lambda x: x.reshape(-1), metrics)  # (full,) per block
-        if full < n:
-            sac_state, rest = chunk(sac_state, keys[full:])
-            metrics = jax.tree.map(lambda a, b: jnp.concatenate([a, b]), metrics, rest)
-        return ts.replace(sac=sac_state), jax.tree.map(jnp.mean, metrics)
+        sac_state, metrics = sac_loop.sac_blocks(
+            self.cfg, self.env, self.sac_nets, self.sac_optimizers, ts.hparams, ts.sac,
+            ts.replay, self.reward_fn(ts), self.terminal_fn(), n, key,
+        )  # fmt: skip
+        return ts.replace(sac=sac_state), metrics
 
     def classifier_update(self, ts: TrainState, key) -> tuple[TrainState, dict]:
         """One Eq. 5 update: negatives are achieved goals of random buffer states (of the
@@ -430,54 +366,6 @@ def params_finite(ts: TrainState) -> jax.Array:
     leaves = jax.tree.leaves((ts.sac, ts.classifier.params))
     floats = [jnp.all(jnp.isfinite(x)) for x in leaves if jnp.issubdtype(x.dtype, jnp.floating)]
     return jnp.all(jnp.stack(floats))
-
-
-# --- the jit boundary over runs ----------------------------------------------------------
-
-
-def over_runs(fn, num_runs: int, in_axes: tuple):
-    """`jax.vmap(fn, in_axes)` over the leading run axis, without a size-1 batch axis.
-
-    With one run, fn runs on the squeezed arguments and its outputs get the axis back:
-    the same function, but XLA's CPU matmuls then carry no size-1 batch dimension, which
-    made the 3x512 SAC update 10% slower (measured 18.4 against 20.5 updates/s, 2 cores).
-    """
-    if num_runs != 1:
-        return jax.vmap(fn, in_axes=in_axes)
-
-    def single(*args):
-        squeezed = [
-            a if ax is None else jax.tree.map(lambda x: x[0], a)
-            for a, ax in zip(args, in_axes, strict=True)
-        ]
-        return jax.tree.map(lambda x: x[None], fn(*squeezed))
-
-    return single
-
-
-def jit_step(agent: Agent, mesh=None, runs_per_device: int | None = None):
-    """THE jit boundary: `agent.step` vmapped over the leading run axis of TrainState.
-
-    Args:
-      agent: the agent.
-      mesh: a one-axis device mesh (`placement.run_mesh`) to split the run axis over, or
-        None for one device.
-      runs_per_device: runs in each device's block; default: all of `agent.num_runs`.
-    Returns:
-      step(ts) -> (ts, metrics): every leaf of ts and metrics is batched over runs; ts is
-      donated.
-    """
-    n = agent.num_runs if runs_per_device is None else runs_per_device
-    step = placement.shard_runs(over_runs(agent.step, n, in_axes=(0,)), mesh)
-    return jax.jit(step, donate_argnums=0)
-
-
-def jit_evaluate(agent: Agent, mesh=None, runs_per_device: int | None = None):
-    """Jitted SPEC §7 evaluation over runs: (ts, keys (runs,)) -> metrics (`jit_step`'s
-    arguments)."""
-    n = agent.num_runs if runs_per_device is None else runs_per_device
-    evaluate = placement.shard_runs(over_runs(agent.evaluate, n, in_axes=(0, 0)), mesh)
-    return jax.jit(evaluate)
 
 
 def make_train_step(cfg: config_lib.TrainConfig, env: envs.GoalEnv):

@@ -23,7 +23,7 @@ import numpy as np
 
 import envs
 from d2c_jax.training import agent as agent_lib
-from d2c_jax.training import cli, loop, placement, runs, sweep
+from d2c_jax.training import cli, loop, placement, programs, runs, sweep
 from d2c_jax.training import logging as logging_lib
 from d2c_jax.viewing import plots
 
@@ -54,7 +54,7 @@ def evaluate_run(run_dir, episodes: int | None = None, checkpoint: int | None = 
     # Every run on one device, as load_run gathered them: keys in run order.
     everything_here = placement.RunLayout(agent.num_runs, 1, 0, 1)
     keys = loop.eval_keys(agent, everything_here, None, iteration)
-    metrics = loop.host_metrics(agent_lib.jit_evaluate(agent)(ts, keys), agent.num_runs)
+    metrics = loop.host_metrics(programs.jit_evaluate(agent)(ts, keys), agent.num_runs)
     return {
         "iteration": iteration,
         "env_steps": iteration * agent.schedule.env_steps,

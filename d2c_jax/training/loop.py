@@ -23,7 +23,7 @@ from d2c_jax import config as config_lib
 from d2c_jax.training import agent as agent_lib
 from d2c_jax.training import loggers as loggers_lib
 from d2c_jax.training import logging as logging_lib
-from d2c_jax.training import placement, runs, sweep
+from d2c_jax.training import placement, programs, runs, sweep
 from d2c_jax.training.runs import RunError  # noqa: F401  (raised here; the CLI catches it)
 
 # --- signals --------------------------------------------------------------------------
@@ -199,8 +199,8 @@ def train(
         n = layout.runs_per_device
         keys = eval_keys(agent, layout, mesh, 0)
         steps = _Compiled(
-            train=agent_lib.jit_step(agent, mesh, n).lower(ts).compile(),
-            evaluate=agent_lib.jit_evaluate(agent, mesh, n).lower(ts, keys).compile(),
+            train=programs.jit_step(agent, mesh, n).lower(ts).compile(),
+            evaluate=programs.jit_evaluate(agent, mesh, n).lower(ts, keys).compile(),
         )
         writer = logging_lib.MetricsWriter(out / "metrics.jsonl") if lead else None
         sinks = None
