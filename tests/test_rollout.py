@@ -214,6 +214,36 @@ def test_success_rates_in_batches_equal_one_batch(medium_maze):
     np.testing.assert_array_equal(scores[0], (np.asarray(env.goal_points)[:, 1] > 0).astype(float))
 
 
+@pytest.mark.parametrize("switching", [False, True])
+def test_collect_in_batches_equals_one_batch(medium_maze, switching):
+    """Training episodes played 3 at a time (`collect`'s max_batch: 7 = 3 + 3 + 1 padded)
+    are the episodes of one batch, goal switches and their keys included."""
+    env = medium_maze
+    noisy = lambda obs, goal, key: jax.random.uniform(key, (2,), minval=-1, maxval=1)  # noqa: E731
+    policy = go_right if switching else noisy
+    goals = jnp.array([[3.0, 0.0], [100.0, 100.0], [3.0, 0.0]])
+    key = jax.random.key(8)
+    episodes = [
+        jax.jit(lambda k, b=b: rollout.collect(env, policy, far, goals, 7, k, 10, max_batch=b))(key)
+        for b in (None, 3)
+    ]
+    switched = (np.asarray(episodes[0].goal)[:, 1:] != np.asarray(episodes[0].goal)[:, :-1]).any()
+    assert switched == switching
+    for one, batched in zip(*map(jax.tree.leaves, episodes), strict=True):
+        assert one.shape == batched.shape
+        np.testing.assert_allclose(np.asarray(batched), np.asarray(one), rtol=0, atol=1e-5)
+
+
+def test_episodes_per_call_are_capped_on_cpu_only():
+    """`MAX_CPU_ENV_BATCH` env states per call on CPU, shared by the runs vmapped together
+    (at least one episode each); no cap on an accelerator."""
+    cap = rollout.MAX_CPU_ENV_BATCH
+    assert rollout.max_episodes_per_call("cpu", 1) == cap
+    assert rollout.max_episodes_per_call("cpu", 3) == cap // 3
+    assert rollout.max_episodes_per_call("cpu", 10 * cap) == 1
+    assert rollout.max_episodes_per_call("gpu", 64) is None
+
+
 def test_run_records_what_it_is_told(medium_maze):
     """run(record=...) keeps per step what record(before, action, after) returns."""
     env = medium_maze

@@ -230,6 +230,7 @@ def collect(
     num_envs: int,
     key: jax.Array,
     switch_every: int = 0,
+    max_batch: int | None = None,
 ) -> Episodes:
     """Runs `num_envs` training episodes in parallel; env i starts with curriculum goal
     i mod K and switches goals after success (`run` with `next_goal`; None keeps them).
@@ -243,13 +244,18 @@ def collect(
       key: PRNG key.
       switch_every: after the first success, also switch goals every this many steps
         (0: only on success).
+      max_batch: episodes played at once at most (`in_batches`, the same episodes;
+        `max_episodes_per_call`); None: all in one call.
     Returns:
       Episodes with leading axis num_envs.
     """
     k = curriculum_goals.shape[0]
     goals = curriculum_goals[jnp.arange(num_envs) % k]
-    first, (obs, ag, action, goal, success) = run(
-        env, policy, goals, key, record=_transition, next_goal=next_goal, switch_every=switch_every
+    play = lambda g, keys: run_with_env_keys(  # noqa: E731
+        env, policy, g, keys, record=_transition, next_goal=next_goal, switch_every=switch_every
+    )
+    first, (obs, ag, action, goal, success) = in_batches(
+        play, goals, jax.random.split(key, num_envs), max_batch
     )
     return Episodes(
         obs=_prepend(first.obs, obs),
@@ -261,19 +267,36 @@ def collect(
     )
 
 
-# Episodes played as one batch at most by `success_rates`. On XLA:CPU (jax 0.10.2) an Ant
-# evaluation of 400 episodes in one batch hung after compiling (its YNNPACK matmul
-# fusions; 100 finished): benchmarks/RESULTS.md, stop 74.
+# Episodes played as one batch at most by `success_rates` (see `MAX_CPU_ENV_BATCH`).
 MAX_EPISODE_BATCH = 100
 
+# Env states stepped in one call at most on XLA:CPU, counting every run vmapped together.
+# MJX's Newton solver (Ant, Sawyer) factors a batch of matrices with jaxlib's LAPACK
+# Cholesky. jaxlib 0.10.2 splits a large batch into tasks on XLA's intra-op thread pool
+# and blocks until they finish, so as many such factorizations at once as the pool has
+# threads (2 here) wait forever for each other's tasks. Measured on 2 cores: two
+# independent factorizations of 14x14 matrices (the ant's) per scan step finish at a
+# batch of 200, slow down at 256-300 and hang at 384; an Ant evaluation of 400 episodes
+# hangs, of 200 finishes (benchmarks/RESULTS.md, stop 75).
+MAX_CPU_ENV_BATCH = 200
 
-def in_batches(play, goals: jax.Array, env_keys: jax.Array, max_batch: int):
-    """`play(goals, env_keys)` on (n, ...) inputs: one call when n <= max_batch, else
-    `lax.map` over batches of max_batch rows (the last padded by repeating its final row;
-    the padding's outputs are dropped). Each episode keeps its own key, so its outcome
-    does not depend on the batching."""
+
+def max_episodes_per_call(platform: str, num_runs: int) -> int | None:
+    """Episodes one call of the episode loop may play per run when `num_runs` runs are
+    vmapped together on `platform` (`jax.default_backend()`): on CPU `MAX_CPU_ENV_BATCH`
+    shared by the runs (at least 1), elsewhere no cap (None)."""
+    if platform != "cpu":
+        return None
+    return max(1, MAX_CPU_ENV_BATCH // num_runs)
+
+
+def in_batches(play, goals: jax.Array, env_keys: jax.Array, max_batch: int | None):
+    """`play(goals, env_keys)` on (n, ...) inputs: one call when n <= max_batch (or
+    max_batch is None), else `lax.map` over batches of max_batch rows (the last padded by
+    repeating its final row; the padding's outputs are dropped). Each episode keeps its
+    own key, so its outcome does not depend on the batching."""
     n = goals.shape[0]
-    if n <= max_batch:
+    if max_batch is None or n <= max_batch:
         return play(goals, env_keys)
     n_batches = -(-n // max_batch)
     pad = n_batches * max_batch - n
@@ -293,7 +316,7 @@ def success_rates(
     goals: jax.Array,
     episodes_per_goal: int,
     key: jax.Array,
-    max_batch: int = MAX_EPISODE_BATCH,
+    max_batch: int | None = MAX_EPISODE_BATCH,
 ) -> jax.Array:
     """(n_goals,) share of `episodes_per_goal` episodes per goal that reach it: SPEC §7's
     episodes (from the start state with its reset noise, no goal switching; success =
@@ -317,10 +340,17 @@ def _success_of(before: EnvState, action: jax.Array, after: EnvState) -> jax.Arr
     return after.success
 
 
-def evaluate(env: GoalEnv, policy: Policy, episodes_per_mode: int, key: jax.Array) -> jax.Array:
+def evaluate(
+    env: GoalEnv,
+    policy: Policy,
+    episodes_per_mode: int,
+    key: jax.Array,
+    max_batch: int | None = MAX_EPISODE_BATCH,
+) -> jax.Array:
     """SPEC §7: success rate per mode, (n_modes,): `success_rates` with the goal = each
-    mode point exactly."""
-    return success_rates(env, policy, jnp.asarray(env.goal_points), episodes_per_mode, key)
+    mode point exactly, at most `max_batch` episodes at a time."""
+    goals = jnp.asarray(env.goal_points)
+    return success_rates(env, policy, goals, episodes_per_mode, key, max_batch)
 
 
 def _trace_point(state: EnvState) -> Trace:

@@ -67,6 +67,9 @@ class Agent:
         self.rewards = tuple(sorted({interface.train_reward(c) for c in self.run_configs}))
         self.curriculum = interface.make_curriculum(cfg, env, self.classifier_net, uses_goal_value)
         self.constants = host_constants(env, self.curriculum.needs_start_obs)
+        # Episodes per call of the episode loop, per run: a cap on CPU only, where jaxlib's
+        # batched Cholesky (MJX's Newton solver) deadlocks above it (`rollout.MAX_CPU_ENV_BATCH`).
+        self.episode_batch = rollout.max_episodes_per_call(jax.default_backend(), self.num_runs)
 
     # --- state ----------------------------------------------------------------------
 
@@ -157,7 +160,9 @@ class Agent:
     def evaluate(self, ts: TrainState, key: jax.Array) -> dict:
         """SPEC §7 evaluation of one seed: "eval/success" and "eval/success/<k>" per mode."""
         policy = self.policy(ts.sac, deterministic=True)
-        per_mode = rollout.evaluate(self.env, policy, self.cfg.eval_episodes, key)
+        cap = rollout.MAX_EPISODE_BATCH
+        cap = cap if self.episode_batch is None else min(cap, self.episode_batch)
+        per_mode = rollout.evaluate(self.env, policy, self.cfg.eval_episodes, key, cap)
         metrics = {"eval/success": per_mode.mean()}
         return {**metrics, **{f"eval/success/{k}": per_mode[k] for k in range(self.env.n_modes)}}
 
@@ -285,7 +290,9 @@ class Agent:
         inputs = self.curriculum_inputs(ts, key=jax.random.fold_in(key, 3))
         next_goal = self.curriculum.next_goal(ts.curriculum_state, inputs)
         switch_every = 0 if next_goal is None else cfg.curriculum.post_success_switch_every
-        return rollout.collect(env, policy, next_goal, goals, cfg.num_envs, key, switch_every)
+        return rollout.collect(
+            env, policy, next_goal, goals, cfg.num_envs, key, switch_every, self.episode_batch
+        )
 
     # --- updates --------------------------------------------------------------------
 
