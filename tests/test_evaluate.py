@@ -31,9 +31,10 @@ from d2c_jax.training import logging as logging_lib
 SEEDS = 2
 
 
-def probe_evaluate(env, policy, episodes_per_mode, key):
+def probe_evaluate(env, policy, episodes_per_mode, key, max_batch=None):
     """Stands in for `rollout.evaluate`: (n_modes,) values in [0, 1] that depend on the
-    key, on the deterministic policy's parameters and on the episode count."""
+    key, on the deterministic policy's parameters and on the episode count (it plays no
+    episodes, so `max_batch` does not matter)."""
     obs = jnp.zeros(env.obs_dim)
     goals = jnp.asarray(env.goal_points, jnp.float32)
     actions = jax.vmap(lambda g: policy(obs, g, key))(goals)  # (n_modes, action_dim)
