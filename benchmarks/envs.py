@@ -10,7 +10,8 @@ runs in its own child process with a time limit: XLA's CPU runtime deadlocks (no
 always, but mostly) on the Sawyer step vmapped 512 wide or more (every thread idle in a
 futex wait, no CPU used; jax 0.10.2; 256 wide never hung), so a child that times out is
 re-run stepping the batch as a `lax.map` over vmapped chunks of `FALLBACK_CHUNK` envs,
-and its row is marked.
+and its row is marked. The cause is jaxlib's batched Cholesky in MJX's Newton solver (see
+`d2c_jax.core.rollout.MAX_CPU_ENV_BATCH`, which caps the package's own episode loop).
 
 C MuJoCo: `mujoco.rollout` on the same MjModel, one thread and all threads, the same
 number of env steps (x substeps), open loop with the same kind of controls (Ant: uniform
