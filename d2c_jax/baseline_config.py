@@ -2,7 +2,7 @@
 vds`; docs/BASELINES.md cites each default): fields of `config.TrainConfig`, and
 importable from `d2c_jax.config` as they always were.
 
-Every field has a one-line docstring (`config.field_docs` reads them for `--help`).
+Every field has a one-line docstring (`config_io.field_docs` reads them for `--help`).
 """
 
 from __future__ import annotations

@@ -14,7 +14,7 @@ import pytest
 import scipy.optimize
 
 import envs
-from d2c_jax import config
+from d2c_jax import config, config_io
 from d2c_jax.curricula import curriculum, hgg, interface
 from d2c_jax.training import agent as agent_lib
 from d2c_jax.training import cli, loop, validation
@@ -56,7 +56,7 @@ def _check_baseline_run(env_name: str, algo: str, out, undocumented=None) -> Non
     if config.ALGO_REWARDS[algo] == "sparse":
         assert 0.0 <= last["sac/reward_mean"] <= 1.0
     assert not any(k.startswith("classifier/") for k in last)
-    assert config.from_dict(config.TrainConfig, _config_json(out)).algo == algo
+    assert config_io.from_dict(config.TrainConfig, _config_json(out)).algo == algo
 
 
 def _config_json(out) -> dict:

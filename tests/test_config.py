@@ -18,7 +18,7 @@ import typing
 import pytest
 
 import envs
-from d2c_jax import config
+from d2c_jax import config, config_io
 from d2c_jax.training import cli, runs, validation
 
 ROOT = pathlib.Path(__file__).resolve().parents[1]
@@ -202,12 +202,14 @@ def test_defaults_are_medium_maze_s_paper_preset_and_unknown_env_raises():
 
 
 def test_presets_are_importable_from_config_and_other_names_are_not():
-    """presets.py owns the presets; config re-exports them (the contract's path), and only
-    them: a misspelt name is still an AttributeError."""
+    """presets.py owns the presets and config_io the config.json helpers; config re-exports
+    them (the contract's path), and only them: a misspelt name is still an AttributeError."""
     from d2c_jax import presets
 
     for name in config._PRESET_EXPORTS:
         assert getattr(config, name) is getattr(presets, name)
+    for name in config._CONFIG_IO_EXPORTS:  # config_io owns the config.json helpers
+        assert getattr(config, name) is getattr(config_io, name)
     assert config.preset("ant", "quick") == presets.quick_preset("ant")
     with pytest.raises(AttributeError, match="no attribute 'quick_presets'"):
         config.quick_presets  # noqa: B018
@@ -221,11 +223,11 @@ def test_old_config_json_loads_as_its_run_ran(env, name):
     today's round-trips unchanged."""
     cfg = config.preset(env, name)
     new = json.loads(json.dumps(dataclasses.asdict(cfg)))
-    assert config.from_dict(config.TrainConfig, new) == cfg
+    assert config_io.from_dict(config.TrainConfig, new) == cfg
     old = json.loads(json.dumps(dataclasses.asdict(cfg)))
     del old["curriculum"]["goal_noise"]
     old["checkpoint_every"] = cfg.checkpoint_every // (cfg.num_envs * envs.horizon(env))
-    assert config.from_dict(config.TrainConfig, old) == cfg
+    assert config_io.from_dict(config.TrainConfig, old) == cfg
 
 
 def test_every_leaf_field_has_a_range_and_exceptions_name_fields():

@@ -16,6 +16,7 @@ import numpy as np
 import pytest
 
 from d2c_jax import config as config_lib
+from d2c_jax import config_io
 from d2c_jax.training import cli, loggers
 from d2c_jax.training import logging as logging_lib
 
@@ -172,7 +173,7 @@ def test_wandb_offline_runs_equal_metrics_once_per_step(logged_run):
 
 def test_config_of_a_run_starts_a_new_run_with_overrides(logged_run):
     out, _ = logged_run
-    saved = config_lib.from_dict(
+    saved = config_io.from_dict(
         config_lib.TrainConfig, json.loads((out / "config.json").read_text())
     )
     cfg, run_dir, resume = cli.parse_args(["--config", str(out / "config.json"), "--seed", "5"])
@@ -225,7 +226,7 @@ def test_help_lists_every_flag_and_config_field_with_its_doc(capsys):
         assert validation.flag_name(path) in text, path
     for flag in ("--env", "--config", "--preset", "--algo", "--seeds", "--log", "--resume"):
         assert flag in text
-    doc = config_lib.field_docs(config_lib.SACConfig)["batch_size"]
+    doc = config_io.field_docs(config_lib.SACConfig)["batch_size"]
     assert f"{doc} (default: 512)" in flat
     assert "config: classifier" in text and "config: teachers" in text
     # Help does not weaken the exit-2 contract for bad input.

@@ -10,7 +10,7 @@ import sys
 import numpy as np
 import pytest
 
-from d2c_jax import config
+from d2c_jax import config, config_io
 from d2c_jax.training import cli, commands, loop, placement, runs, sweep
 from d2c_jax.training import logging as logging_lib
 
@@ -131,10 +131,10 @@ def test_every_sweepable_field_is_a_traced_input_of_the_step(field, medium_maze)
     swept = dataclasses.replace(base, sweep=((field, values),))
     programs, hparams = [], []
     for value in values:
-        agent = agent_lib.Agent(config.replace_field(swept, field, value), medium_maze)
+        agent = agent_lib.Agent(config_io.replace_field(swept, field, value), medium_maze)
         ts = jax.eval_shape(agent.init_runs)
         programs.append(agent_lib.jit_step(agent).lower(ts).as_text())
-        hparams.append(agent_lib.hyperparams(config.replace_field(base, field, value)))
+        hparams.append(agent_lib.hyperparams(config_io.replace_field(base, field, value)))
     assert programs[0] == programs[1]
     leaves = [jax.tree.leaves(h) for h in hparams]
     assert any(not np.array_equal(a, b) for a, b in zip(*leaves, strict=True))

@@ -10,7 +10,7 @@ import sys
 import numpy as np
 import pytest
 
-from d2c_jax import config
+from d2c_jax import config, config_io
 from d2c_jax.training import agent as agent_lib
 from d2c_jax.training import cli, loop, placement, programs, runs
 from d2c_jax.training import logging as logging_lib
@@ -529,7 +529,7 @@ def test_ablations_run_one_iteration(override):
 
 def test_config_round_trips_through_config_json():
     cfg = config.preset("ant", "tiny")
-    assert config.from_dict(config.TrainConfig, json.loads(runs.config_to_json(cfg))) == cfg
+    assert config_io.from_dict(config.TrainConfig, json.loads(runs.config_to_json(cfg))) == cfg
 
 
 def test_over_runs_equals_vmap_with_and_without_a_size_one_axis():

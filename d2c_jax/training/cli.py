@@ -21,7 +21,7 @@ import sys
 import typing
 
 from d2c_jax import config as config_lib
-from d2c_jax import presets
+from d2c_jax import config_io, presets
 from d2c_jax.training import validation
 from d2c_jax.training.options import CLI_FIELDS, Parser, build_parser
 from d2c_jax.training.overrides import UsageError, apply_override, has_field, parse_sweep
@@ -189,11 +189,11 @@ def saved_config(path_text: str, known: argparse.Namespace) -> config_lib.TrainC
     except (OSError, ValueError) as err:
         reason = "not valid JSON" if isinstance(err, ValueError) else err.strerror
         raise UsageError(f"--config {path}: cannot read it: {reason}") from None
-    unknown = config_lib.unknown_fields(config_lib.TrainConfig, values)
+    unknown = config_io.unknown_fields(config_lib.TrainConfig, values)
     if unknown:
         raise UsageError(f"--config {path}: unknown config fields: {', '.join(unknown)}")
     try:
-        cfg = config_lib.from_dict(config_lib.TrainConfig, values)
+        cfg = config_io.from_dict(config_lib.TrainConfig, values)
     except (TypeError, ValueError) as err:
         raise UsageError(f"--config {path}: {err}") from None
     for option in ("env", "preset", "algo"):

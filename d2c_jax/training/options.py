@@ -12,6 +12,7 @@ import types
 import typing
 
 from d2c_jax import config as config_lib
+from d2c_jax import config_io
 from d2c_jax.training import validation
 from d2c_jax.training.overrides import UsageError, field_types
 
@@ -125,7 +126,7 @@ def _env_ids() -> tuple[str, ...]:
 
 def _add_field_groups(parser: argparse.ArgumentParser, cfg, prefix: str = "") -> None:
     """One help group per config section, one entry per field: its doc and default."""
-    docs = config_lib.field_docs(type(cfg))
+    docs = config_io.field_docs(type(cfg))
     hints = field_types(type(cfg))
     title = prefix.rstrip(".") or "run"
     group = parser.add_argument_group(

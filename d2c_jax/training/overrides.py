@@ -11,7 +11,7 @@ import dataclasses
 import types
 import typing
 
-from d2c_jax import config as config_lib
+from d2c_jax import config_io
 
 
 class UsageError(Exception):
@@ -95,7 +95,7 @@ def parse_sweep(cfg, spec: str):
     if not eq or not name or not text:
         raise UsageError(f"--sweep {spec!r} must be FIELD=V1,V2,... (e.g. sac.tau=0.005,0.01)")
     field = name.replace("-", "_")
-    if not has_field(cfg, field) or dataclasses.is_dataclass(config_lib.get_field(cfg, field)):
+    if not has_field(cfg, field) or dataclasses.is_dataclass(config_io.get_field(cfg, field)):
         raise UsageError(f"--sweep {name}: unknown field; sweepable: {sweep.sweepable_list()}")
     if field not in sweep.SWEEPABLE_FIELDS:
         raise UsageError(

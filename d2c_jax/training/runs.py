@@ -17,6 +17,7 @@ import jax
 
 import envs
 from d2c_jax import config as config_lib
+from d2c_jax import config_io
 from d2c_jax.training import agent as agent_lib
 from d2c_jax.training import checkpoint as checkpoint_lib
 from d2c_jax.training import logging as logging_lib
@@ -67,7 +68,7 @@ def prepare_run_dir(out: pathlib.Path, cfg, resume: bool) -> None:
                 raise RunError(f"--out {out}: config.json is not valid JSON", 2) from None
         # Through from_dict, so a config.json of an older version (fields since added or
         # re-expressed, e.g. checkpoint_every in iterations) compares by meaning.
-        saved = json.loads(config_to_json(config_lib.from_dict(config_lib.TrainConfig, saved)))
+        saved = json.loads(config_to_json(config_io.from_dict(config_lib.TrainConfig, saved)))
         current = json.loads(config_to_json(cfg))
         for field in RESUME_MAY_CHANGE:
             saved.pop(field, None), current.pop(field, None)
@@ -226,7 +227,7 @@ def read_config(run_dir) -> config_lib.TrainConfig:
         values = json.loads(config_path.read_text())
     except ValueError:
         raise RunError(f"{config_path} is not valid JSON", 2) from None
-    return config_lib.from_dict(config_lib.TrainConfig, values)
+    return config_io.from_dict(config_lib.TrainConfig, values)
 
 
 def load_run(run_dir, step: int | None = None):

@@ -17,6 +17,7 @@ import dataclasses
 import itertools
 
 from d2c_jax import config as config_lib
+from d2c_jax import config_io
 
 # The fields the step reads from `TrainState.hparams` (`agent.hyperparams` builds them
 # from a config), by dotted path. `tests/test_sweep.py` checks that each one reaches the
@@ -79,7 +80,7 @@ def arm_configs(cfg: config_lib.TrainConfig) -> list[config_lib.TrainConfig]:
     for values in arm_values(cfg):
         arm = dataclasses.replace(cfg, sweep=())
         for field, value in zip(fields, values, strict=True):
-            arm = config_lib.replace_field(arm, field, value)
+            arm = config_io.replace_field(arm, field, value)
         arms.append(arm)
     return arms
 
