@@ -6,7 +6,8 @@
 prints brax SAC's env steps/s and SAC updates/s on `medium_maze` (through
 `envs.to_brax`); `python -m benchmarks.run --only throughput` puts them beside ours.
 `--bare` times the two SAC updates alone, each `lax.scan`ned over BARE_UPDATES updates on
-one fixed batch, alternating round by round: brax's update built from its own parts
+one fixed batch, alternating round by round, and prints each update's FLOPs (XLA's cost
+analysis) and the rate it reaches: brax's update built from its own parts
 (`sac.losses.make_losses`, `gradients.gradient_update_fn`, the order of its `sgd_step`:
 alpha, critic, actor, target, each from the pre-update parameters) against ours
 (`sac.update_sac_block` at the same settings). The difference between the bare and the
@@ -178,9 +179,12 @@ def _ours_bare_update(cfg, agent, action, key):
     return update, state
 
 
-def bare_update_ms(size: str, rounds: int, env_name: str = "medium_maze") -> dict[str, list]:
+def bare_update_ms(
+    size: str, rounds: int, env_name: str = "medium_maze"
+) -> tuple[dict[str, list], dict[str, float]]:
     """Milliseconds per SAC update of brax's update and of ours alone, `rounds` alternating
-    rounds of BARE_UPDATES updates each on one fixed batch at SIZES[size]: name -> ms."""
+    rounds of BARE_UPDATES updates each on one fixed batch at SIZES[size]: name -> ms per
+    round, and name -> FLOPs of one update (`update_flops`)."""
     import jax
     import jax.numpy as jnp
     from brax.training import types
@@ -204,7 +208,18 @@ def bare_update_ms(size: str, rounds: int, env_name: str = "medium_maze") -> dic
         "brax SAC": _brax_bare_update(hidden, feat_dim, act_dim, transitions, keys[3]),
         "d2c_jax": _ours_bare_update(cfg, agent, action, keys[3]),
     }
-    return _alternating_ms(updates, rounds, keys[0])
+    flops = {name: update_flops(u, s, keys[0]) for name, (u, s) in updates.items()}
+    return _alternating_ms(updates, rounds, keys[0]), flops
+
+
+def update_flops(update, state, key) -> float:
+    """Floating-point operations of one call of `update(state, key)`, as XLA's cost analysis
+    of the compiled update counts them (matmuls at 2 per multiply-add, plus elementwise)."""
+    import jax
+
+    compiled = jax.jit(lambda s, k: update(s, k)[0]).lower(state, key).compile()
+    cost = compiled.cost_analysis()
+    return float((cost[0] if isinstance(cost, list) else cost)["flops"])
 
 
 def _alternating_ms(updates: dict, rounds: int, key) -> dict[str, list]:
@@ -239,11 +254,15 @@ def main(argv=None) -> int:
         return 2
     if args.bare:
         for size in args.sizes:
-            ms = bare_update_ms(size, args.rounds, args.env)
+            ms, flops = bare_update_ms(size, args.rounds, args.env)
             ours, brax = ms["d2c_jax"], ms["brax SAC"]
             for name, values in ms.items():
                 median = statistics.median(values)
-                print(f"{name} {size_label(size)}: median {median:.3f} ms/update")
+                rate = flops[name] / median / 1e6  # GFLOP/s at the median
+                print(
+                    f"{name} {size_label(size)}: median {median:.3f} ms/update, "
+                    f"{flops[name] / 1e9:.2f} GFLOP/update (XLA cost analysis), {rate:.0f} GFLOP/s"
+                )
             ratio = results.paired_ratio([1 / t for t in ours], [1 / t for t in brax])
             print(f"ours vs brax (updates/s, paired median): {ratio:.2f}x", flush=True)
         return 0

@@ -254,6 +254,20 @@ def test_brax_sac_epochs_alternate_with_the_callback():
     assert all(np.isfinite(r) and r > 0 for r in rates)
 
 
+def test_update_flops_counts_a_matmul_at_two_per_multiply_add():
+    """`brax_sac.update_flops` on an "update" that is one (8, 16) x (16, 4) matmul: XLA's
+    cost analysis gives 2 x 8 x 16 x 4 = 1,024 FLOPs (hand-computed)."""
+    import jax
+    import jax.numpy as jnp
+
+    from benchmarks import brax_sac
+
+    weights = jnp.ones((16, 4))
+    update = lambda x, key: (x[:, :16] @ weights, None)  # noqa: E731
+    flops = brax_sac.update_flops(update, jnp.ones((8, 16)), jax.random.key(0))
+    assert flops == 2 * 8 * 16 * 4
+
+
 def test_visit_map_reach_rates_of_a_policy_that_never_moves():
     """A policy that never moves reaches only the start cell's centre (the reset lies
     within 0.1 x sqrt 2 of it, inside the 0.5 radius); walls are NaN and drawn '#'."""
