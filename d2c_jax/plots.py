@@ -1,6 +1,7 @@
 """`python -m d2c_jax.plots RUN_DIR`: (re)draws a run's plots into RUN_DIR/plots;
-`python -m d2c_jax.plots compare RUN_DIR...`: several runs' success on one figure
-(`d2c_jax.viewing.plots`, kept at this path for the command and old imports)."""
+`python -m d2c_jax.plots compare RUN_DIR... [--metric KEY]`: several runs' success (or
+another metric) on one figure (`d2c_jax.viewing.plots`, kept at this path for the command
+and old imports)."""
 
 import sys
 

@@ -169,6 +169,29 @@ def test_compare_draws_runs_and_sweep_arms_into_one_png(tmp_path, monkeypatch, c
     assert capsys.readouterr().err.startswith("error: compare: no run directories")
 
 
+def test_compare_draws_another_metric_as_the_mean_over_seeds(tmp_path, monkeypatch, capsys):
+    """`--metric curriculum/distance`: the line is the per-row mean over the 2 seeds (hand-
+    computed), on the metric's own axis; a metric the runs never logged exits 2."""
+    rows = [
+        {"iteration": 1, "env_steps": 100, "curriculum/distance": [4.0, 2.0]},
+        {"iteration": 2, "env_steps": 200, "eval/success": [0, 0]},
+    ]
+    rows[1]["curriculum/distance"] = [3.0, 1.0]
+    run_dir = _write_run(tmp_path / "two_seeds", rows, num_seeds=2)
+    figures = []
+    monkeypatch.setattr(plots, "save", lambda fig, path: figures.append(fig))
+    plots.compare_runs([(run_dir, rows)], tmp_path / "unused.png", metric="curriculum/distance")
+    (ax,) = figures[0].axes
+    (line,) = ax.get_lines()
+    np.testing.assert_array_equal(line.get_xdata(), [100, 200])
+    np.testing.assert_allclose(line.get_ydata(), [3.0, 2.0])
+    assert ax.get_ylabel() == "curriculum/distance"
+    plt.close(figures[0])
+    argv = ["compare", str(run_dir), "--metric", "sac/q_mean", "--out", str(tmp_path / "q.png")]
+    assert commands.plots_main(argv) == 2
+    assert capsys.readouterr().err.strip().endswith("no sac/q_mean in its metrics")
+
+
 def test_compare_of_a_non_run_directory_exits_2_with_one_line(tmp_path):
     env = {**os.environ, "JAX_PLATFORMS": "cpu"}
     proc = subprocess.run(

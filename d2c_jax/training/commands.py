@@ -128,8 +128,9 @@ def render_main(argv=None) -> int:
 
 def plots_main(argv=None) -> int:
     """`python -m d2c_jax.plots RUN_DIR` redraws RUN_DIR/plots from its metrics;
-    `python -m d2c_jax.plots compare RUN_DIR [RUN_DIR ...] [--out FILE]` draws the eval
-    success of several runs in one figure (default ./compare.png).
+    `python -m d2c_jax.plots compare RUN_DIR [RUN_DIR ...] [--out FILE] [--metric KEY]`
+    draws one metric of several runs in one figure (default: eval/success into
+    ./compare.png).
 
     A first argument `compare` is always the subcommand (a run directory of that name is
     redrawn as `./compare`). Returns 0, or 2 with a one-line `error: ...` on stderr.
@@ -140,21 +141,26 @@ def plots_main(argv=None) -> int:
     if compare:
         parser = argparse.ArgumentParser(
             prog=f"{prog} compare",
-            description="Draw the eval success of several runs in one figure: mean +- std "
-            "over each directory's seeds, one curve per arm for a sweep.",
+            description="Draw the eval success (or another metric) of several runs in one "
+            "figure: mean +- std over each directory's seeds, one curve per arm for a sweep.",
         )
         # nargs="*" and a check below: argparse's own "required" error is two lines.
         parser.add_argument("run_dirs", nargs="*", metavar="RUN_DIR", help="run directories")
         parser.add_argument("--out", default="compare.png", help="figure path (.png)")
+        parser.add_argument(
+            "--metric",
+            default="eval/success",
+            help="the metrics.jsonl key to draw, e.g. curriculum/distance (docs/METRICS.md)",
+        )
         args = parser.parse_args(argv[1:])
         run_dirs = [pathlib.Path(d) for d in args.run_dirs]
     else:
         parser = argparse.ArgumentParser(
             prog=prog,
             description="Redraw a run's plots (RUN_DIR/plots) from its metrics.",
-            epilog=f"Also: {prog} compare RUN_DIR [RUN_DIR ...] [--out FILE] draws several "
-            "runs in one figure. A first argument 'compare' is always that subcommand; "
-            "redraw a run directory named compare as ./compare.",
+            epilog=f"Also: {prog} compare RUN_DIR [RUN_DIR ...] [--out FILE] [--metric KEY] "
+            "draws several runs in one figure. A first argument 'compare' is always that "
+            "subcommand; redraw a run directory named compare as ./compare.",
         )
         parser.add_argument("run_dir", help="a run directory written by train.py")
         run_dirs = [pathlib.Path(parser.parse_args(argv).run_dir)]
@@ -167,7 +173,8 @@ def plots_main(argv=None) -> int:
                 raise RunError(f"{run_dir} has no metrics.jsonl", 2)
         if compare:
             runs = [(d, logging_lib.read_metrics(d / "metrics.jsonl")) for d in run_dirs]
-            plots.compare_runs(runs, args.out, [getattr(c, "sweep", ()) for c in cfgs])
+            sweeps = [getattr(c, "sweep", ()) for c in cfgs]
+            plots.compare_runs(runs, args.out, sweeps, args.metric)
             written = args.out
         else:
             (run_dirs[0] / "plots").mkdir(exist_ok=True)

@@ -296,9 +296,10 @@ def sweep_success_curves(rows: list[dict], sweep, n_seeds: int, path) -> None:
     save(fig, path)
 
 
-def compare_runs(run_dirs_and_rows, path, sweeps=None) -> None:
-    """Eval success of several run directories in one figure, mean +- std over all runs
-    of each directory, or over the seeds of each arm when a directory is a sweep.
+def compare_runs(run_dirs_and_rows, path, sweeps=None, metric: str = "eval/success") -> None:
+    """One metric (eval success by default) of several run directories in one figure,
+    mean +- std over all runs of each directory, or over the seeds of each arm when a
+    directory is a sweep.
 
     Args:
       run_dirs_and_rows: (run directory, its metrics.jsonl rows) pairs; a directory's
@@ -306,10 +307,12 @@ def compare_runs(run_dirs_and_rows, path, sweeps=None) -> None:
       path: the .png to write.
       sweeps: one sweep ((field, values) pairs, `arm_labels`) per directory, () for one
         without; None = no sweeps. The seeds per arm are the runs per row / the arms.
+      metric: the metrics.jsonl key to draw (a number per run in a row), e.g.
+        "curriculum/distance" (the paper's Figs. 4 and 9).
 
     Raises:
-      ValueError: a directory without evaluation rows, or whose runs per row are not
-        a whole number per arm.
+      ValueError: a directory without rows holding `metric`, or whose runs per row are
+        not a whole number per arm.
     """
     run_dirs_and_rows = list(run_dirs_and_rows)
     sweeps = [()] * len(run_dirs_and_rows) if sweeps is None else list(sweeps)
@@ -319,10 +322,11 @@ def compare_runs(run_dirs_and_rows, path, sweeps=None) -> None:
     for (run_dir, rows), sweep in zip(run_dirs_and_rows, sweeps, strict=True):
         style = next(styles)
         name = pathlib.Path(run_dir).resolve().name or str(run_dir)
-        steps, values = _series(rows, "eval/success")  # (T,), (T, runs)
+        steps, values = _series(rows, metric)  # (T,), (T, runs)
         labels = arm_labels(sweep)
         if not len(steps):
-            raise ValueError(f"{run_dir}: no evaluation rows (eval/success) in its metrics")
+            what = "evaluation rows (eval/success)" if metric == "eval/success" else metric
+            raise ValueError(f"{run_dir}: no {what} in its metrics")
         if values.shape[1] % len(labels):
             raise ValueError(
                 f"{run_dir}: {values.shape[1]} runs per row do not split into {len(labels)} arms"
@@ -332,5 +336,11 @@ def compare_runs(run_dirs_and_rows, path, sweeps=None) -> None:
         for label, m, s in zip(labels, mean, std, strict=True):
             text = f"{name} ({_seeds_text(n_seeds)})" if not sweep else f"{name}: {label}"
             _band_line(ax, steps, m, s, text, band=n_seeds > 1, linestyle=style)
-    _success_axes(ax, "eval success, mean ± std over seeds")
+    if metric == "eval/success":
+        _success_axes(ax, "eval success, mean ± std over seeds")
+    else:
+        ax.set(xlabel="env steps", ylabel=metric)
+        ax.set_title(f"{metric}, mean ± std over seeds", fontsize=10)
+        ax.legend(fontsize=8)
+        ax.grid(alpha=0.3)
     save(fig, path)
