@@ -330,8 +330,8 @@ _PRESET_EXPORTS = (
 )  # fmt: skip
 
 
-# Reading and writing config.json dicts lives in d2c_jax/config_io.py, which imports this
-# module; its names stay importable from here too, resolved on first use likewise.
+# Reading config.json dicts and dotted field paths live in d2c_jax/config_io.py, which imports
+# this module; its names stay importable from here too, resolved on first use likewise.
 _CONFIG_IO_EXPORTS = (
     "from_dict", "replace_field", "get_field", "unknown_fields", "field_docs",
 )  # fmt: skip
