@@ -640,14 +640,16 @@ def test_a_signal_while_an_iteration_computes_stops_at_its_end(tmp_path, monkeyp
 
 
 def test_many_runs_collect_in_capped_batches_on_cpu_with_the_same_episodes(medium_maze):
-    """With 2 runs of 150 envs on CPU each run collects at most 100 episodes per call
-    (`rollout.MAX_CPU_ENV_BATCH` shared by the runs: jaxlib's batched Cholesky deadlocks
-    above it), and the episodes are those of one call."""
+    """With 2 runs of 150 envs on CPU each run collects, and evaluates, at most 100
+    episodes per call (`rollout.MAX_CPU_ENV_BATCH` shared by the runs: jaxlib's batched
+    Cholesky deadlocks above it), and the episodes and scores are those of one call."""
     import jax
 
     from d2c_jax.core import rollout
 
-    cfg = dataclasses.replace(config.preset("medium_maze", "tiny"), num_envs=150, num_seeds=2)
+    cfg = dataclasses.replace(
+        config.preset("medium_maze", "tiny"), num_envs=150, num_seeds=2, eval_episodes=30
+    )  # 4 modes x 30 = 120 evaluation episodes
     agent = agent_lib.Agent(cfg, medium_maze)
     assert jax.default_backend() == "cpu"
     assert agent.episode_batch == rollout.MAX_CPU_ENV_BATCH // 2 < cfg.num_envs
@@ -655,8 +657,13 @@ def test_many_runs_collect_in_capped_batches_on_cpu_with_the_same_episodes(mediu
     goals = agent.env_goals(ts, ts.curriculum_goals)
     collect = lambda ts, key: agent.collect_episodes(ts, goals, jax.numpy.asarray(True), key)  # noqa: E731
     capped = jax.jit(collect)(ts, jax.random.key(1))
+    capped_eval = jax.jit(agent.evaluate)(ts, jax.random.key(2))
     agent.episode_batch = None
     whole = jax.jit(collect)(ts, jax.random.key(1))
+    whole_eval = jax.jit(agent.evaluate)(ts, jax.random.key(2))
     assert capped.obs.shape[0] == cfg.num_envs
     for a, b in zip(jax.tree.leaves(capped), jax.tree.leaves(whole), strict=True):
         np.testing.assert_allclose(np.asarray(a), np.asarray(b), rtol=0, atol=1e-5)
+    assert capped_eval.keys() == whole_eval.keys()
+    for name in whole_eval:
+        np.testing.assert_array_equal(capped_eval[name], whole_eval[name])

@@ -267,9 +267,6 @@ def collect(
     )
 
 
-# Episodes played as one batch at most by `success_rates` (see `MAX_CPU_ENV_BATCH`).
-MAX_EPISODE_BATCH = 100
-
 # Env states stepped in one call at most on XLA:CPU, counting every run vmapped together.
 # MJX's Newton solver (Ant, Sawyer) factors a batch of matrices with jaxlib's LAPACK
 # Cholesky. jaxlib 0.10.2 splits a large batch into tasks on XLA's intra-op thread pool
@@ -316,7 +313,7 @@ def success_rates(
     goals: jax.Array,
     episodes_per_goal: int,
     key: jax.Array,
-    max_batch: int | None = MAX_EPISODE_BATCH,
+    max_batch: int | None = None,
 ) -> jax.Array:
     """(n_goals,) share of `episodes_per_goal` episodes per goal that reach it: SPEC §7's
     episodes (from the start state with its reset noise, no goal switching; success =
@@ -324,7 +321,8 @@ def success_rates(
 
     Episode i (goal i // episodes_per_goal) uses `split(key, n)[i]`. `policy` should be
     deterministic (tanh of the mean): then its key does not matter. At most `max_batch`
-    episodes are played at once (`in_batches`; see `MAX_EPISODE_BATCH`).
+    episodes are played at once (`in_batches`; None: all in one call; on a CPU pass
+    `max_episodes_per_call`, as the agent does).
     """
     repeated = jnp.repeat(goals, episodes_per_goal, axis=0)  # (n_goals * n, goal_dim)
     success = in_batches(
@@ -345,7 +343,7 @@ def evaluate(
     policy: Policy,
     episodes_per_mode: int,
     key: jax.Array,
-    max_batch: int | None = MAX_EPISODE_BATCH,
+    max_batch: int | None = None,
 ) -> jax.Array:
     """SPEC §7: success rate per mode, (n_modes,): `success_rates` with the goal = each
     mode point exactly, at most `max_batch` episodes at a time."""

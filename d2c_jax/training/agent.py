@@ -160,9 +160,9 @@ class Agent:
     def evaluate(self, ts: TrainState, key: jax.Array) -> dict:
         """SPEC §7 evaluation of one seed: "eval/success" and "eval/success/<k>" per mode."""
         policy = self.policy(ts.sac, deterministic=True)
-        cap = rollout.MAX_EPISODE_BATCH
-        cap = cap if self.episode_batch is None else min(cap, self.episode_batch)
-        per_mode = rollout.evaluate(self.env, policy, self.cfg.eval_episodes, key, cap)
+        per_mode = rollout.evaluate(
+            self.env, policy, self.cfg.eval_episodes, key, self.episode_batch
+        )
         metrics = {"eval/success": per_mode.mean()}
         return {**metrics, **{f"eval/success/{k}": per_mode[k] for k in range(self.env.n_modes)}}
 
